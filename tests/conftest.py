@@ -1,0 +1,41 @@
+"""Shared fixtures: the motion capture folder and its manifest.
+
+Tests that need ../shared/mocap skip with a reason when it is absent, unless
+JAXSTYLE_REQUIRE_MOCAP=1 (set by .ci/run), where a missing folder fails them instead.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+
+import pytest
+
+from jaxstyle.data import ENV_VAR, default_mocap_dir
+
+
+def _mocap_or_skip() -> Path:
+    path = default_mocap_dir()
+    if path.is_dir() and any(path.rglob("*.bvh")):
+        return path
+    reason = f"motion capture not found at {path} (set {ENV_VAR})"
+    if os.environ.get("JAXSTYLE_REQUIRE_MOCAP") == "1":
+        pytest.fail(reason + "; JAXSTYLE_REQUIRE_MOCAP=1 makes this an error")
+    pytest.skip(reason)
+
+
+@pytest.fixture(scope="session")
+def mocap() -> Path:
+    return _mocap_or_skip()
+
+
+@pytest.fixture(scope="session")
+def manifest(mocap) -> dict[str, dict]:
+    with open(mocap / "MANIFEST.tsv", newline="") as f:
+        rows = list(csv.DictReader(f, delimiter="\t"))
+    return {r["file"]: r for r in rows if r["file"].endswith(".bvh")}
+
+
+def all_bvh(mocap: Path) -> list[Path]:
+    return sorted(mocap.rglob("*.bvh"))
