@@ -24,7 +24,7 @@ def _median_seconds(*fns, repeats: int) -> list[float]:
         fn()  # warm-up (imports, caches)
     times = [[] for _ in fns]
     for _ in range(repeats):
-        for fn, ts in zip(fns, times):
+        for fn, ts in zip(fns, times, strict=True):
             t0 = time.perf_counter()
             fn()
             ts.append(time.perf_counter() - t0)
@@ -51,8 +51,9 @@ def main() -> None:
           f"{sum(len(c) for c in motion.channels)} channels, {path.stat().st_size / 1e6:.1f} MB)")
     print(f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, "
           f"{__import__('os').cpu_count()} cores, numpy {np.__version__}")
-    print(f"read_bvh (parse + Euler->quaternion): {read_s * 1e3:8.2f} ms   {motion.num_frames / read_s:12,.0f} frames/s")
-    print(f"np.loadtxt of the same motion block:  {loadtxt_s * 1e3:8.2f} ms   {motion.num_frames / loadtxt_s:12,.0f} frames/s")
+    for label, seconds in (("read_bvh (parse + Euler->quaternion):", read_s),
+                           ("np.loadtxt of the same motion block: ", loadtxt_s)):
+        print(f"{label} {seconds * 1e3:8.2f} ms   {motion.num_frames / seconds:12,.0f} frames/s")
     print(f"  ratio read_bvh / loadtxt: {read_s / loadtxt_s:.2f}  (target <= 1.00)")
     print(f"forward kinematics (rotations + positions): {fk_s * 1e3:8.2f} ms   "
           f"{joint_frames / fk_s / 1e6:8.2f} M joint-frames/s  (target > 1)")

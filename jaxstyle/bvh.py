@@ -372,6 +372,14 @@ def motion_channel_values(motion: Motion, channels: tuple[tuple[str, ...], ...] 
         elif not np.allclose(np.abs(motion.rotations[:, j, 0]), 1.0, atol=1e-6):
             raise MotionDataError(
                 f"joint {motion.names[j]!r} rotates but has no rotation channels to write", motion.source)
+        unlisted = [k for k, c in enumerate(POSITION_CHANNELS) if c not in chans]
+        scale = max(float(np.abs(motion.offsets).max(initial=0.0)), 1.0)
+        if unlisted and not np.allclose(motion.local_positions[:, j, unlisted], motion.offsets[j, unlisted],
+                                        rtol=0.0, atol=1e-9 * scale):
+            missing = " ".join(POSITION_CHANNELS[k] for k in unlisted)
+            raise MotionDataError(
+                f"joint {motion.names[j]!r} moves along {missing} but has no such channel to write; "
+                "pass channels that include it", motion.source)
         for c in chans:
             if c in POSITION_CHANNELS:
                 cols.append(motion.local_positions[:, j, POSITION_CHANNELS.index(c)])
@@ -401,7 +409,7 @@ def format_bvh(motion: Motion, channels: tuple[tuple[str, ...], ...] | None = No
     for j, p in enumerate(motion.parents):
         children.setdefault(int(p), []).append(j)
     ends: dict[int, list[np.ndarray]] = {}
-    for p, off in zip(motion.end_site_parents, motion.end_site_offsets):
+    for p, off in zip(motion.end_site_parents, motion.end_site_offsets, strict=True):
         ends.setdefault(int(p), []).append(off)
     fmt = f"%.{precision}f"
     out = ["HIERARCHY"]

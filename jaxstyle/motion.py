@@ -100,7 +100,8 @@ class Motion:
         """The motion restricted to ``frames[start:stop:step]`` (same skeleton and fps unless ``step``)."""
         sl = slice(start, stop, step)
         fps = self.fps / (step or 1)
-        return dataclasses.replace(self, rotations=self.rotations[sl], local_positions=self.local_positions[sl], fps=fps)
+        return dataclasses.replace(self, rotations=self.rotations[sl], local_positions=self.local_positions[sl],
+                                   fps=fps)
 
     def replace(self, **changes) -> "Motion":
         """A copy with the given fields changed (``dataclasses.replace``)."""

@@ -154,7 +154,8 @@ def test_error_line_is_exact_in_a_real_file(mocap, tmp_path):
     lines[target - 1] = " ".join(values)
     path = tmp_path / "Angry_FW.bvh"
     path.write_text("\n".join(lines))
-    with pytest.raises(js.MotionDataError, match=rf"Angry_FW\.bvh, line {target}: motion row 4001 holds nan \(value 18\)"):
+    expected = rf"Angry_FW\.bvh, line {target}: motion row 4001 holds nan \(value 18\)"
+    with pytest.raises(js.MotionDataError, match=expected):
         js.read_bvh(path)
 
 

@@ -166,3 +166,19 @@ def test_fps_is_snapped_only_near_integers():
     assert js.parse_bvh(base + "Frame Time: 0.016667\n0 0 0\n").fps == 60.0
     assert js.parse_bvh(base + "Frame Time: 0.04\n0 0 0\n").fps == 25.0
     assert js.parse_bvh(base + "Frame Time: 0.0123\n0 0 0\n").fps == pytest.approx(1 / 0.0123)
+
+
+def test_writer_refuses_to_drop_an_unwritable_translation():
+    text, _ = _general_text(np.random.default_rng(4))
+    motion = js.parse_bvh(text)
+    # Prop animates only Yposition; rotating the whole motion moves it along X and Z too.
+    turned = js.rotate(motion, js.quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.5))
+    channels = list(turned.channels)
+    channels[2] = ("Zrotation", "Xrotation", "Yrotation")
+    channels[3] = ("Yrotation", "Xrotation", "Zrotation")
+    channels[5] = ("Yposition", "Xrotation", "Yrotation", "Zrotation")
+    with pytest.raises(js.MotionDataError, match="'Prop' moves along Xposition Zposition"):
+        js.format_bvh(turned, tuple(channels))
+    channels[5] = js.bvh.DEFAULT_ROOT_CHANNELS
+    back = js.parse_bvh(js.format_bvh(turned, tuple(channels)))
+    np.testing.assert_allclose(js.global_positions(back), js.global_positions(turned), atol=1e-5)

@@ -49,7 +49,8 @@ def test_every_sided_joint_gets_its_counterpart(names):
         assert mapping["mixamorig:LeftArm"] == "mixamorig:RightArm"
         assert mapping["Root"] == "Root" and mapping["LowerLeg"] == "LowerLeg"
     if names is CMU:
-        assert mapping["LHipJoint"] == "RHipJoint" and mapping["LThumb"] == "RThumb" and mapping["LowerBack"] == "LowerBack"
+        assert mapping["LHipJoint"] == "RHipJoint" and mapping["LThumb"] == "RThumb"
+        assert mapping["LowerBack"] == "LowerBack"
 
 
 def test_missing_counterpart_is_an_error():
