@@ -91,7 +91,6 @@ def _parse_hierarchy(lines: list[str], source: str) -> dict:
     stack: list[int] = []  # open blocks: joint index, or -2 for an End Site
     pending: int | None = None  # a ROOT/JOINT/End Site line waiting for its "{"
     saw_header = False
-    first_open_line = 0
     for lineno, raw in enumerate(lines, start=1):
         tokens = raw.replace("{", " { ").replace("}", " } ").split()
         if not tokens:
@@ -136,8 +135,6 @@ def _parse_hierarchy(lines: list[str], source: str) -> dict:
             if tok == "{":
                 if pending is None:
                     raise MotionDataError("'{' without a ROOT, JOINT or End Site before it", source, lineno)
-                if not stack:
-                    first_open_line = first_open_line or lineno
                 stack.append(pending)
                 pending = None
                 i += 1
@@ -152,7 +149,10 @@ def _parse_hierarchy(lines: list[str], source: str) -> dict:
                 vals = _floats(tokens[i + 1:i + 4], 3, "OFFSET", source, lineno)
                 if not stack:
                     raise MotionDataError("OFFSET outside a joint block", source, lineno)
-                (end_offsets if stack[-1] == -2 else offsets)[-1 if stack[-1] == -2 else stack[-1]] = vals
+                if stack[-1] == -2:  # inside an End Site: it is the latest one
+                    end_offsets[-1] = vals
+                else:
+                    offsets[stack[-1]] = vals
                 i += 4
                 continue
             if tok == "CHANNELS":
@@ -180,7 +180,7 @@ def _parse_hierarchy(lines: list[str], source: str) -> dict:
     if stack or pending is not None:
         raise MotionDataError("hierarchy ends with an unclosed '{' before MOTION", source, len(lines))
     if not names:
-        raise MotionDataError("the hierarchy defines no joints", source, first_open_line or 1)
+        raise MotionDataError("the hierarchy defines no joints", source, 1)
     return dict(names=tuple(names), parents=np.array(parents, dtype=np.int64),
                 offsets=np.array(offsets, dtype=np.float64), channels=tuple(channels),
                 end_parents=np.array(end_parents, dtype=np.int64),

@@ -73,11 +73,10 @@ def skeleton_height(motion: Motion) -> float:
 
     Used as the length scale of tolerances ("within 1e-4 of skeleton height").
     """
-    up = rest_positions(motion)[:, UP_AXIS]
-    height = float(up.max() - up.min())
+    pts = rest_positions(motion)
+    height = float(np.ptp(pts[:, UP_AXIS]))
     if height <= 0:  # a flat skeleton: fall back to its largest extent
-        pts = rest_positions(motion)
-        height = float(np.max(pts.max(0) - pts.min(0)))
+        height = float(np.max(np.ptp(pts, axis=0)))
     return height
 
 
@@ -133,7 +132,7 @@ def facing_directions(motion: Motion, *, hips: tuple[str, str] | None = None,
     scale = max(float(np.median(np.linalg.norm(across, axis=-1))), 1e-12)
     bad = norm[:, 0] < 1e-6 * scale
     if np.any(bad):
-        root_fwd = quat.forward(global_transforms(motion)[0][:, 0])
+        root_fwd = quat.forward(motion.rotations[:, 0])  # joint 0 is a root: local == global
         root_fwd[:, UP_AXIS] = 0.0
         root_norm = np.linalg.norm(root_fwd, axis=-1, keepdims=True)
         root_fwd = np.where(root_norm > 1e-9, root_fwd / np.maximum(root_norm, 1e-12), np.array([0.0, 0.0, 1.0]))

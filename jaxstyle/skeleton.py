@@ -34,17 +34,28 @@ def _word_counterpart(name: str) -> str | None:
     return None
 
 
+def _is_side_letter(name: str, i: int, strict: bool) -> bool:
+    """Whether ``name[i]`` is a side letter (L, R, l, r) at a token boundary.
+
+    Loose: it starts or ends a token ("lhand", "hip_l"), which is enough when the swapped name
+    must also exist. Strict: it starts a token and is followed by an upper-case letter, a
+    separator or the end ("LThumb", "Bip01 L Thigh", "hip_l"), which is safe to read alone.
+    """
+    if name[i] not in _LETTER_SWAP:
+        return False
+    before = name[i - 1] if i > 0 else ""
+    after = name[i + 1] if i + 1 < len(name) else ""
+    starts = before == "" or before in _SEPARATORS
+    ends = after == "" or after in _SEPARATORS
+    if strict:
+        return starts and (ends or after.isupper())
+    return starts or ends
+
+
 def _letter_candidates(name: str):
     """Names obtained by swapping one single side letter (prefix, suffix or separated token)."""
-    n = len(name)
     for i, ch in enumerate(name):
-        if ch not in _LETTER_SWAP:
-            continue
-        before = name[i - 1] if i > 0 else ""
-        after = name[i + 1] if i + 1 < n else ""
-        is_prefix = i == 0 or before in _SEPARATORS
-        is_suffix = i == n - 1 or after in _SEPARATORS
-        if is_prefix or is_suffix:
+        if _is_side_letter(name, i, strict=False):
             yield name[:i] + _LETTER_SWAP[ch] + name[i + 1:]
 
 
@@ -81,11 +92,8 @@ def side_of(name: str) -> str | None:
         if b in name:
             return "right"
     for i, ch in enumerate(name):
-        if ch in _LETTER_SWAP:
-            before = name[i - 1] if i > 0 else ""
-            after = name[i + 1] if i + 1 < len(name) else ""
-            if (i == 0 or before in _SEPARATORS) and (after.isupper() or after in _SEPARATORS or after == ""):
-                return "left" if ch in "Ll" else "right"
+        if _is_side_letter(name, i, strict=True):
+            return "left" if ch in "Ll" else "right"
     return None
 
 
@@ -106,7 +114,7 @@ def _find_pair(names: Sequence[str], pairs: np.ndarray, keywords: Sequence[str])
         if i == j or side_of(names[i]) != "left":
             continue
         stem = _strip_side(names[i])
-        if stem and stem[0] in _LETTER_SWAP and (len(stem) == 1 or stem[1].isupper() or stem[1] in _SEPARATORS):
+        if stem and _is_side_letter(stem, 0, strict=True):
             stem = stem[1:]  # drop a side letter prefix: "LHipJoint" -> "HipJoint"
         stem = stem.strip(_SEPARATORS).lower()
         for rank, kw in enumerate(keywords):
