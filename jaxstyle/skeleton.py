@@ -142,3 +142,27 @@ def find_hips_and_shoulders(names: Sequence[str], source: str | None = None
             f"cannot find the left/right {missing} joints by name among {', '.join(names)}; "
             "pass hips=(left, right) and shoulders=(left, right) explicitly", source)
     return hips, shoulders
+
+
+_ANKLE_NAMES = ("ankle", "foot")
+_TOE_NAMES = ("toebase", "toe", "toe0", "ball", "toes")
+_HAND_NAMES = ("hand", "wrist")
+
+
+def find_feet_and_hands(names: Sequence[str], source: str | None = None) -> dict[str, tuple[str, str]]:
+    """``{"ankles": (left, right), "toes": (left, right), "hands": (left, right)}`` found by name.
+
+    Ankles are ``Ankle`` (100STYLE) or ``Foot`` (CMU, Mixamo); toes ``ToeBase`` (CMU, Mixamo) or
+    ``Toe`` (100STYLE); hands ``Hand`` (CMU) or ``Wrist`` (100STYLE). Raises
+    :class:`MotionDataError` naming what is missing, so the caller can pass joints explicitly.
+    """
+    pairs = mirror_pairs(names, source)
+    found = {"ankles": _find_pair(names, pairs, _ANKLE_NAMES),
+             "toes": _find_pair(names, pairs, _TOE_NAMES),
+             "hands": _find_pair(names, pairs, _HAND_NAMES)}
+    missing = [k for k, v in found.items() if v is None]
+    if missing:
+        raise MotionDataError(
+            f"cannot find the left/right {', '.join(missing)} by name among {', '.join(names)}; "
+            "pass the joint names explicitly", source)
+    return found

@@ -1,0 +1,81 @@
+"""Automatic global phase vs the hand-cleaned PFNN labels, and the effect of the contact moment.
+
+    python experiments/phase_accuracy.py [--mocap DIR]
+
+Prints, for each definition of the start of a contact (and for a few speed thresholds), the
+median and 90th-percentile circular error in cycles over the labelled frames of the flat-ground
+captures (original and mirrored) and, separately, of the stairs capture.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+import jaxstyle as js
+from jaxstyle import contacts, phase
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    flat: tuple[str, ...] = ("NewCaptures01_000", "NewCaptures10_000", "NewCaptures11_000")
+    stairs: tuple[str, ...] = ("WalkingUpSteps09_000",)
+    speed_thresholds: tuple[float, ...] = (0.1, 0.125, 0.15, 0.175, 0.2)
+
+
+def files(folder: Path, names: tuple[str, ...]) -> list[Path]:
+    return [folder / f"{n}{suffix}.bvh" for n in names for suffix in ("", "_mirror")]
+
+
+def summary(paths: list[Path], **kwargs) -> tuple[float, float]:
+    errors = np.concatenate([phase.label_errors(p, **kwargs) for p in paths])
+    return float(np.median(errors)), float(np.percentile(errors, 90))
+
+
+def step_offsets(paths: list[Path], **kwargs) -> np.ndarray:
+    """Detected minus labelled footstep frames, for each labelled footstep inside its clip."""
+    out = []
+    for p in paths:
+        motion = js.read_bvh(p)
+        labelled = [int(t) for t in Path(str(p)[:-4] + "_footsteps.txt").read_text().split()]
+        if len(labelled) < 2:
+            continue
+        left, right = phase.footsteps(motion, **kwargs)
+        for i, frame in enumerate(labelled):  # footsteps alternate right, left, right, ...
+            detected = right if i % 2 == 0 else left
+            if frame < motion.num_frames and len(detected):
+                out.append(detected[np.argmin(np.abs(detected - frame))] - frame)
+    return np.array(out)
+
+
+def main(config: Config = Config()) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--mocap", type=Path, default=None, help="motion capture folder (default $JAXSTYLE_MOCAP)")
+    args = parser.parse_args()
+    folder = (args.mocap or js.mocap_dir()) / "pfnn_excerpt"
+    flat, stairs = files(folder, config.flat), files(folder, config.stairs)
+
+    print("Global phase error (cycles): median / 90th percentile over labelled frames")
+    print(f"flat ground: {len(flat)} files, stairs: {len(stairs)} files (originals and mirrors)\n")
+    print(f"{'contact moment':16s}{'flat median':>12s}{'flat p90':>10s}{'stairs median':>15s}{'stairs p90':>12s}"
+          "   footstep offsets (frames at 120 fps, detected - labelled)")
+    for moment in contacts.CONTACT_MOMENTS:
+        fm, fp = summary(flat, contact_moment=moment)
+        sm, sp = summary(stairs, contact_moment=moment)
+        mark = "  (default)" if moment == phase.DEFAULT_CONTACT_MOMENT else ""
+        off = step_offsets(flat + stairs, contact_moment=moment)
+        print(f"{moment:16s}{fm:12.3f}{fp:10.3f}{sm:15.3f}{sp:12.3f}   {' '.join(f'{o:+d}' for o in off)}{mark}")
+
+    print(f"\nSpeed threshold (m/s), contact moment '{phase.DEFAULT_CONTACT_MOMENT}': flat median / p90")
+    for v in config.speed_thresholds:
+        fm, fp = summary(flat, speed_threshold=v)
+        print(f"  v_max={v:<6g} {fm:.3f} / {fp:.3f}")
+    fm, fp = summary(flat, release_speed=None)
+    print(f"  no hysteresis (v_max=0.15 both ways): {fm:.3f} / {fp:.3f}")
+
+
+if __name__ == "__main__":
+    main()
