@@ -6,7 +6,8 @@ Reimplements Mason et al. 2018 (few-shot PFNN residual adapters) and Mason, Star
 
 from jaxstyle import quat
 from jaxstyle.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
-from jaxstyle.data import default_mocap_dir, mocap_dir
+from jaxstyle.contacts import FootContacts, FootJoints, estimate_units_per_meter, foot_contacts, joint_contacts
+from jaxstyle.data import default_mocap_dir, mocap_dir, read_phase_labels
 from jaxstyle.errors import JaxstyleError, MotionDataError
 from jaxstyle.kinematics import (
     bone_lengths,
@@ -18,30 +19,48 @@ from jaxstyle.kinematics import (
     root_trajectory,
     skeleton_height,
 )
+from jaxstyle.local_phase import LocalPhases, local_phases
 from jaxstyle.motion import Motion
-from jaxstyle.skeleton import find_hips_and_shoulders, mirror_pairs
+from jaxstyle.phase import circular_distance, footsteps, global_phase
+from jaxstyle.sinusoid import SinusoidFit, fit_sinusoids, fit_windows
+from jaxstyle.skeleton import find_feet_and_hands, find_hips_and_shoulders, mirror_pairs
 from jaxstyle.transform import mirror, resample, rotate, scale, set_up_axis
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "FootContacts",
+    "FootJoints",
     "JaxstyleError",
+    "LocalPhases",
     "Motion",
     "MotionDataError",
+    "SinusoidFit",
     "bone_lengths",
+    "circular_distance",
     "default_mocap_dir",
+    "estimate_units_per_meter",
     "facing_directions",
+    "find_feet_and_hands",
     "find_hips_and_shoulders",
+    "fit_sinusoids",
+    "fit_windows",
+    "foot_contacts",
+    "footsteps",
     "format_bvh",
     "forward_kinematics",
+    "global_phase",
     "global_positions",
     "global_transforms",
+    "joint_contacts",
+    "local_phases",
     "mirror",
     "mirror_pairs",
     "mocap_dir",
     "parse_bvh",
     "quat",
     "read_bvh",
+    "read_phase_labels",
     "resample",
     "rest_positions",
     "root_trajectory",
