@@ -75,19 +75,19 @@ def clean_runs(mask_TxJ: np.ndarray, *, max_gap: int = 0, min_length: int = 0) -
     for j in range(mask.shape[1]):
         col = mask[:, j]
         if max_gap > 0:
-            starts, ends = _runs(~col)
+            starts, ends = runs(~col)
             for s, e in zip(starts, ends, strict=True):
                 if s > 0 and e < num_frames and e - s <= max_gap:
                     col[s:e] = True
         if min_length > 1:
-            starts, ends = _runs(col)
+            starts, ends = runs(col)
             for s, e in zip(starts, ends, strict=True):
                 if s > 0 and e < num_frames and e - s < min_length:
                     col[s:e] = False
     return mask[:, 0] if squeeze else mask
 
 
-def _runs(col: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def runs(col: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start (inclusive) and end (exclusive) frames of the ``True`` runs of a 1-D mask."""
     padded = np.concatenate([[False], col, [False]])
     edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
@@ -96,7 +96,7 @@ def _runs(col: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def contact_starts(mask_T: np.ndarray) -> np.ndarray:
     """Frames where a contact run begins (a run already under way at frame 0 is not a start)."""
-    starts, _ = _runs(np.asarray(mask_T, dtype=bool))
+    starts, _ = runs(np.asarray(mask_T, dtype=bool))
     return starts[starts > 0]
 
 

@@ -234,7 +234,8 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
         raise MotionDataError(f"unknown joint(s) {unknown}; the skeleton has {', '.join(motion.names)}", motion.source)
 
     idx = motion.joint_indices(bones)
-    root = kinematics.root_trajectory(motion)
+    root = g_pos[:, 0].copy()  # joint 0 is the root; its ground projection, as root_trajectory
+    root[:, UP_AXIS] = 0.0
     facing = kinematics.facing_directions(motion, positions_TxJx3=g_pos)
     local = character_frame_positions(g_pos[:, idx], root, facing) / upm  # metres
     free = contact_free_source(local)

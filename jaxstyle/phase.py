@@ -87,7 +87,7 @@ def step_starts(onset_TxF: np.ndarray, toe_heights_TxF: np.ndarray, min_lift: fl
     onset = np.asarray(onset_TxF, dtype=bool)
     events = []  # (frame, foot, lift)
     for k in range(onset.shape[1]):
-        starts, ends = contacts_lib._runs(onset[:, k])
+        starts, ends = contacts_lib.runs(onset[:, k])
         for i, s in enumerate(starts):
             if s == 0:
                 continue

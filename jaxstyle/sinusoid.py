@@ -65,7 +65,7 @@ def _sums(w_NxW, y_NxBxW, s_NxKxW, c_NxKxW):
     ms = jnp.einsum("nw,nkw->nk", w_NxW, s_NxKxW) / n[:, None]
     mc = jnp.einsum("nw,nkw->nk", w_NxW, c_NxKxW) / n[:, None]
     my = jnp.einsum("nw,nbw->nb", w_NxW, y_NxBxW) / n[:, None]
-    yc = (y_NxBxW - my[..., None]) * w_NxW[:, None, :]
+    yc = (y_NxBxW - my[..., None]) * w_NxW[:, None, :]  # samples outside the clip weigh 0
     sc = (s_NxKxW - ms[..., None]) * w_NxW[:, None, :]
     cc = (c_NxKxW - mc[..., None]) * w_NxW[:, None, :]
     g_ss = jnp.sum(sc * sc, -1)
@@ -74,7 +74,7 @@ def _sums(w_NxW, y_NxBxW, s_NxKxW, c_NxKxW):
     b_s = jnp.einsum("nbw,nkw->nbk", yc, sc)
     b_c = jnp.einsum("nbw,nkw->nbk", yc, cc)
     yy = jnp.sum(yc * yc, -1)  # (N, B)
-    return g_ss, g_cc, g_sc, b_s, b_c, yy, my, ms, mc
+    return g_ss, g_cc, g_sc, b_s, b_c, yy
 
 
 def _solve(g_ss, g_cc, g_sc, b_s, b_c):
@@ -94,7 +94,7 @@ def _fit_grid(y_NxBxW, w_NxW, tau_W, freqs_K, max_amplitude):
     n_frames = w_NxW.shape[0]
     s = jnp.broadcast_to(jnp.sin(arg), (n_frames,) + arg.shape)
     c = jnp.broadcast_to(jnp.cos(arg), (n_frames,) + arg.shape)
-    g_ss, g_cc, g_sc, b_s, b_c, yy, _, _, _ = _sums(w_NxW, y_NxBxW, s, c)
+    g_ss, g_cc, g_sc, b_s, b_c, yy = _sums(w_NxW, y_NxBxW, s, c)
     g_ss, g_cc, g_sc = g_ss[:, None], g_cc[:, None], g_sc[:, None]
     # On the grid a too-large fit is only scaled onto the bound (an upper bound on the
     # constrained residual, and cheap); refinement and the final fit solve exactly.
