@@ -6,6 +6,7 @@ Reimplements Mason et al. 2018 (few-shot PFNN residual adapters) and Mason, Star
 
 from jaxstyle import quat
 from jaxstyle.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
+from jaxstyle.character_frame import CharacterFrames, character_frames
 from jaxstyle.contacts import FootContacts, FootJoints, estimate_units_per_meter, foot_contacts, joint_contacts
 from jaxstyle.data import default_mocap_dir, mocap_dir, read_phase_labels
 from jaxstyle.errors import JaxstyleError, MotionDataError
@@ -21,6 +22,7 @@ from jaxstyle.kinematics import (
 )
 from jaxstyle.local_phase import LocalPhases, local_phases
 from jaxstyle.motion import Motion
+from jaxstyle.pfnn_features import PFNNLayout, decode_pfnn, encode_pfnn
 from jaxstyle.phase import circular_distance, footsteps, global_phase
 from jaxstyle.sinusoid import SinusoidFit, fit_sinusoids, fit_windows
 from jaxstyle.skeleton import find_feet_and_hands, find_hips_and_shoulders, mirror_pairs
@@ -29,16 +31,21 @@ from jaxstyle.transform import mirror, resample, rotate, scale, set_up_axis
 __version__ = "0.1.0"
 
 __all__ = [
+    "CharacterFrames",
     "FootContacts",
     "FootJoints",
     "JaxstyleError",
     "LocalPhases",
     "Motion",
     "MotionDataError",
+    "PFNNLayout",
     "SinusoidFit",
     "bone_lengths",
+    "character_frames",
     "circular_distance",
+    "decode_pfnn",
     "default_mocap_dir",
+    "encode_pfnn",
     "estimate_units_per_meter",
     "facing_directions",
     "find_feet_and_hands",

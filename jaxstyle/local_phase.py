@@ -32,8 +32,8 @@ from scipy import ndimage, signal
 
 from jaxstyle import contacts as contacts_lib
 from jaxstyle import kinematics, skeleton
+from jaxstyle.character_frame import character_frames, to_local
 from jaxstyle.errors import MotionDataError
-from jaxstyle.kinematics import UP_AXIS
 from jaxstyle.motion import Motion
 from jaxstyle.sinusoid import F_MAX_HZ, F_MIN_HZ, SinusoidFit, fit_sinusoids, window_frames
 
@@ -49,17 +49,6 @@ SOURCES = ("contact", "free")
 # has A = sqrt(2) and a z-scored contact step function A = 1.1-1.3, so 2 only removes the
 # degenerate fits.
 MAX_AMPLITUDE = 2.0
-
-
-def character_frame_positions(positions_TxJx3: np.ndarray, root_T3: np.ndarray, facing_T3: np.ndarray) -> np.ndarray:
-    """Positions in the character's ground frame: origin under the root, +Z = facing, +Y = up."""
-    up = np.zeros(3)
-    up[UP_AXIS] = 1.0
-    fwd = np.asarray(facing_T3, dtype=np.float64)
-    right = np.cross(up, fwd)  # +X of the character frame
-    rel = np.asarray(positions_TxJx3, dtype=np.float64) - root_T3[:, None, :]
-    return np.stack([np.einsum("tjc,tc->tj", rel, right), rel[..., UP_AXIS],
-                     np.einsum("tjc,tc->tj", rel, fwd)], axis=-1)
 
 
 def principal_direction(local_TxBx3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -234,10 +223,8 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
         raise MotionDataError(f"unknown joint(s) {unknown}; the skeleton has {', '.join(motion.names)}", motion.source)
 
     idx = motion.joint_indices(bones)
-    root = g_pos[:, 0].copy()  # joint 0 is the root; its ground projection, as root_trajectory
-    root[:, UP_AXIS] = 0.0
-    facing = kinematics.facing_directions(motion, positions_TxJx3=g_pos)
-    local = character_frame_positions(g_pos[:, idx], root, facing) / upm  # metres
+    frames = character_frames(motion, smooth_seconds=0.0, positions_TxJx3=g_pos)
+    local = to_local(g_pos[:, idx], frames) / upm  # metres, in the (unsmoothed) character frame
     free = contact_free_source(local)
     raw = np.empty_like(free)
     for b, (name, src) in enumerate(zip(bones, chosen, strict=True)):
