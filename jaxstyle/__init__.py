@@ -16,11 +16,13 @@ from jaxstyle.kinematics import (
     forward_kinematics,
     global_positions,
     global_transforms,
+    motion_from_global,
     rest_positions,
     root_trajectory,
     skeleton_height,
 )
 from jaxstyle.local_phase import LocalPhases, local_phases
+from jaxstyle.lpn_features import LPNFeatures, LPNLayout, decode_lpn, encode_lpn
 from jaxstyle.motion import Motion
 from jaxstyle.pfnn_features import PFNNLayout, decode_pfnn, encode_pfnn
 from jaxstyle.phase import circular_distance, footsteps, global_phase
@@ -35,6 +37,8 @@ __all__ = [
     "FootContacts",
     "FootJoints",
     "JaxstyleError",
+    "LPNFeatures",
+    "LPNLayout",
     "LocalPhases",
     "Motion",
     "MotionDataError",
@@ -43,8 +47,10 @@ __all__ = [
     "bone_lengths",
     "character_frames",
     "circular_distance",
+    "decode_lpn",
     "decode_pfnn",
     "default_mocap_dir",
+    "encode_lpn",
     "encode_pfnn",
     "estimate_units_per_meter",
     "facing_directions",
@@ -64,6 +70,7 @@ __all__ = [
     "mirror",
     "mirror_pairs",
     "mocap_dir",
+    "motion_from_global",
     "parse_bvh",
     "quat",
     "read_bvh",

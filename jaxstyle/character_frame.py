@@ -70,6 +70,16 @@ def rotations_to_local(rotations: np.ndarray, frames: CharacterFrames,
     return quat.mul(np.broadcast_to(inv, rotations.shape), rotations)
 
 
+def trajectory_features(frames: CharacterFrames, centre: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """``(N, 4 K)`` trajectory of frames ``centre + offsets``, each row in its centre frame:
+    x (K) | z (K) of the frame origins, then x (K) | z (K) of their facing directions."""
+    idx = centre[:, None] + offsets[None, :]  # (N, K)
+    pos = to_local(frames.origin[idx], frames, centre)  # (N, K, 3)
+    fwd = np.stack([np.sin(frames.yaw[idx]), np.zeros(idx.shape), np.cos(frames.yaw[idx])], -1)
+    dirs = directions_to_local(fwd, frames, centre)
+    return np.concatenate([pos[..., 0], pos[..., 2], dirs[..., 0], dirs[..., 2]], axis=-1)
+
+
 def wrap_angle(a: np.ndarray) -> np.ndarray:
     """Angles wrapped to ``[-pi, pi)``."""
     return np.mod(np.asarray(a) + np.pi, 2 * np.pi) - np.pi

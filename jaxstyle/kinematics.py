@@ -61,6 +61,23 @@ def global_positions(motion: Motion, end_sites: bool = False) -> np.ndarray:
     return np.concatenate([g_pos, ends], axis=1)
 
 
+def motion_from_global(skeleton: Motion, rotations_TxJx4: np.ndarray, root_positions_TxRx3: np.ndarray) -> Motion:
+    """A :class:`Motion` on ``skeleton``'s hierarchy from global joint rotations and root positions.
+
+    Local rotations are ``inverse(global[parent]) * global[joint]``; non-root joints keep the
+    skeleton's offsets (bones have fixed lengths); roots take the given positions. The inverse
+    of :func:`global_transforms` for skeletons without per-frame joint translations.
+    """
+    g_rot = np.asarray(rotations_TxJx4, dtype=np.float64)
+    parents = skeleton.parents
+    has_parent = parents >= 0
+    local_rot = g_rot.copy()
+    local_rot[:, has_parent] = quat.mul(quat.inverse(g_rot[:, parents[has_parent]]), g_rot[:, has_parent])
+    local_pos = np.broadcast_to(skeleton.offsets, g_rot.shape[:2] + (3,)).copy()
+    local_pos[:, ~has_parent] = root_positions_TxRx3
+    return skeleton.replace(rotations=local_rot, local_positions=local_pos, source=None)
+
+
 def rest_positions(motion: Motion, end_sites: bool = True) -> np.ndarray:
     """Joint (and end-site) positions ``(J [+ E], 3)`` of the rest pose: identity rotations, offsets only."""
     rest = motion.replace(rotations=quat.identity((1, motion.num_joints)),

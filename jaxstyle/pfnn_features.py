@@ -37,6 +37,7 @@ from jaxstyle.character_frame import (
     rotate_yaw,
     rotations_to_local,
     to_local,
+    trajectory_features,
     wrap_angle,
     yaw_quaternion,
 )
@@ -93,15 +94,6 @@ def valid_frames(num_frames: int, fps: float) -> np.ndarray:
     return np.arange(PAST_SAMPLES * s, num_frames - (FUTURE_SAMPLES - 1) * s - 1)
 
 
-def _trajectory(frames: CharacterFrames, centre: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """``(N, 4 K)`` = x (K) | z (K) of positions, then x | z of directions, in the centre frames."""
-    idx = centre[:, None] + offsets[None, :]  # (N, K)
-    pos = to_local(frames.origin[idx], frames, centre)  # (N, K, 3)
-    fwd = np.stack([np.sin(frames.yaw[idx]), np.zeros(idx.shape), np.cos(frames.yaw[idx])], -1)
-    dirs = directions_to_local(fwd, frames, centre)
-    return np.concatenate([pos[..., 0], pos[..., 2], dirs[..., 0], dirs[..., 2]], axis=-1)
-
-
 def encode_pfnn(motion: Motion, phase: np.ndarray, *, frames: CharacterFrames | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(X, Y, t)``: PFNN inputs ``(N, 48 + 6J)``, outputs ``(N, 28 + 12J)`` and their frames ``(N,)``.
@@ -128,12 +120,12 @@ def encode_pfnn(motion: Motion, phase: np.ndarray, *, frames: CharacterFrames | 
     past_future = np.arange(-PAST_SAMPLES, FUTURE_SAMPLES) * s
     pos_t = to_local(g_pos[t], frames, t).reshape(n, -1)
     vel_t = directions_to_local(g_pos[t] - g_pos[t - 1], frames, t).reshape(n, -1)
-    x = np.concatenate([_trajectory(frames, t, past_future), pos_t, vel_t], axis=1)
+    x = np.concatenate([trajectory_features(frames, t, past_future), pos_t, vel_t], axis=1)
 
     root_vel = directions_to_local((frames.origin[t1] - frames.origin[t])[:, None], frames, t)[:, 0]
     ang_vel = wrap_angle(frames.yaw[t1] - frames.yaw[t])
     dphase = np.mod(phase[t1] - phase[t], 1.0)
-    future = _trajectory(frames, t1, np.arange(FUTURE_SAMPLES) * s)
+    future = trajectory_features(frames, t1, np.arange(FUTURE_SAMPLES) * s)
     pos_1 = to_local(g_pos[t1], frames, t1).reshape(n, -1)
     vel_1 = directions_to_local(g_pos[t1] - g_pos[t], frames, t1).reshape(n, -1)
     rot_1 = rotations_to_local(g_rot[t1], frames, t1)
@@ -174,14 +166,6 @@ def decode_pfnn(outputs: np.ndarray, skeleton: Motion, *, origin: np.ndarray | N
     up = y[:, g["joint_up"]].reshape(n, num_joints, 3)
     g_rot = quat.mul(np.broadcast_to(yaw_quaternion(frames.yaw)[:, None], (n, num_joints, 4)),
                      quat.from_forward_up(fwd, up))
-    parents = skeleton.parents
-    local_rot = g_rot.copy()
-    has_parent = parents >= 0
-    local_rot[:, has_parent] = quat.mul(quat.inverse(g_rot[:, parents[has_parent]]), g_rot[:, has_parent])
-    local_positions = np.broadcast_to(skeleton.offsets, (n, num_joints, 3)).copy()
-    roots = ~has_parent
-    local_positions[:, roots] = g_pos[:, roots]
     phases = np.mod(phase + np.cumsum(y[:, 3]), 1.0)
-    decoded = skeleton.replace(rotations=local_rot, local_positions=local_positions, source=None)
-    return decoded, phases
+    return kinematics.motion_from_global(skeleton, g_rot, g_pos[:, skeleton.parents < 0]), phases
 

@@ -1,0 +1,87 @@
+"""The 2022 LPN layout: sizes, style clips, decoding, mirroring and an independent frame check."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import jaxstyle as js
+from jaxstyle import character_frame as cf
+from jaxstyle import lpn_features as lf
+
+CLIPS = ("100style/Angry/Angry_FW.bvh", "100style/Chicken/Chicken_BR.bvh", "100style/Neutral/Neutral_ID.bvh")
+
+
+def test_layout_sizes():
+    layout = lf.LPNLayout(25)
+    assert (layout.input_size, layout.output_size, layout.joint_size) == (348, 342, 300)
+    for groups, size in ((layout.input_groups, 348), (layout.output_groups, 342)):
+        covered = np.zeros(size, int)
+        for sl in groups.values():
+            covered[sl] += 1
+        assert (covered == 1).all()
+
+
+@pytest.mark.parametrize("name", CLIPS)
+def test_100style_clips_give_348_342_and_240x300_clips(mocap, name):
+    motion = js.read_bvh(mocap / name)
+    feats = lf.encode_lpn(motion)
+    n = len(feats.frames)
+    assert len(feats.bones) == 25 and feats.bones[-2:] == ("RightWrist_End", "LeftWrist_End")
+    assert feats.inputs.shape == (n, 348) and feats.outputs.shape == (n, 342) and feats.phases.shape == (n, 8)
+    assert feats.clips.shape[1:] == (240, 300)
+    assert len(feats.clips) == (motion.num_frames - 1 - 240) // 120 + 1
+    np.testing.assert_array_equal(np.diff(feats.clip_starts), 120)
+    frames = cf.character_frames(motion)
+    t = feats.frames
+    decoded = lf.decode_lpn(feats.outputs, motion, origin=frames.origin[t[0]], yaw=frames.yaw[t[0]])
+    err = np.abs(js.global_positions(decoded) - js.global_positions(motion)[t + 1]).max()
+    assert err <= 1e-3 * js.skeleton_height(motion)
+
+
+def test_outputs_against_an_independent_computation(mocap):
+    motion = js.read_bvh(mocap / "100style/Angry/Angry_FW.bvh").frames(1000, 1400)
+    phases = js.local_phases(motion)
+    feats = lf.encode_lpn(motion, phases=phases)
+    layout = lf.LPNLayout(25)
+    g = layout.output_groups
+    frames = cf.character_frames(motion)
+    i = 50
+    f = feats.frames[i]
+    g_rot, g_pos = js.global_transforms(motion)
+    to_frame = Rotation.from_rotvec([0.0, -frames.yaw[f], 0.0])  # outputs are in the input frame
+    rot = to_frame * Rotation.from_quat(g_rot[f + 1][:, [1, 2, 3, 0]])
+    fwd = feats.outputs[i, g["joint_forward"]].reshape(25, 3)
+    np.testing.assert_allclose(fwd[:23], rot.apply([0, 0, 1]), atol=1e-9)
+    np.testing.assert_allclose(fwd[23], fwd[motion.joint_index("RightWrist")])  # end site: parent's rotation
+    pos = feats.outputs[i, g["joint_position"]].reshape(25, 3)[:23]
+    np.testing.assert_allclose(pos, to_frame.apply(g_pos[f + 1] - frames.origin[f]), atol=1e-9)
+    np.testing.assert_allclose(feats.outputs[i, g["local_phase"]], phases.features[f + 1].ravel())
+    np.testing.assert_allclose(feats.outputs[i, g["local_phase_update"]],
+                               (phases.features[f + 1] - phases.features[f]).ravel())
+    np.testing.assert_array_equal(feats.outputs[:, g["foot_contact"]], phases.contacts[feats.frames + 1])
+    np.testing.assert_allclose(feats.phases, phases.features[feats.frames].reshape(-1, 8))
+
+
+def test_mirrored_clip_has_negated_x_and_swapped_limbs(mocap):
+    motion = js.read_bvh(mocap / "100style/Neutral/Neutral_FW.bvh").frames(300, 900)
+    a, b = lf.encode_lpn(motion), lf.encode_lpn(js.mirror(motion))
+    g = lf.LPNLayout(25).input_groups
+    traj, traj_m = a.inputs[:, g["trajectory_position"]], b.inputs[:, g["trajectory_position"]]
+    np.testing.assert_allclose(traj_m[:, :12], -traj[:, :12], atol=1e-6)
+    np.testing.assert_allclose(traj_m[:, 12:], traj[:, 12:], atol=1e-6)
+    pairs = list(js.mirror_pairs(motion.names)) + [24, 23]  # the hand end sites swap too
+    pos = a.inputs[:, g["joint_position"]].reshape(len(a.inputs), 25, 3)
+    pos_m = b.inputs[:, g["joint_position"]].reshape(len(a.inputs), 25, 3)
+    np.testing.assert_allclose(pos_m[..., 0], -pos[:, pairs, 0], atol=1e-6)
+    np.testing.assert_allclose(pos_m[..., 1:], pos[:, pairs, 1:], atol=1e-6)
+
+
+def test_short_clip_errors_and_has_no_style_clip(mocap):
+    motion = js.read_bvh(mocap / "100style/Neutral/Neutral_FW.bvh")
+    assert len(lf.encode_lpn(motion.frames(0, 200)).clips) == 0
+    with pytest.raises(js.MotionDataError, match="trajectory window"):
+        lf.encode_lpn(motion.frames(0, 100))
+    with pytest.raises(ValueError, match="outputs must have shape"):
+        lf.decode_lpn(np.zeros((3, 341)), motion)
