@@ -5,6 +5,7 @@ Reimplements Mason et al. 2018 (few-shot PFNN residual adapters) and Mason, Star
 """
 
 from jaxstyle import quat
+from jaxstyle.batching import balanced_batches, contiguous_split
 from jaxstyle.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
 from jaxstyle.character_frame import CharacterFrames, character_frames
 from jaxstyle.contacts import FootContacts, FootJoints, estimate_units_per_meter, foot_contacts, joint_contacts
@@ -24,6 +25,7 @@ from jaxstyle.kinematics import (
 from jaxstyle.local_phase import LocalPhases, local_phases
 from jaxstyle.lpn_features import LPNFeatures, LPNLayout, decode_lpn, encode_lpn
 from jaxstyle.motion import Motion
+from jaxstyle.normalise import Normaliser, fit_normaliser
 from jaxstyle.pfnn_features import PFNNLayout, decode_pfnn, encode_pfnn
 from jaxstyle.phase import circular_distance, footsteps, global_phase
 from jaxstyle.sinusoid import SinusoidFit, fit_sinusoids, fit_windows
@@ -42,11 +44,14 @@ __all__ = [
     "LocalPhases",
     "Motion",
     "MotionDataError",
+    "Normaliser",
     "PFNNLayout",
     "SinusoidFit",
+    "balanced_batches",
     "bone_lengths",
     "character_frames",
     "circular_distance",
+    "contiguous_split",
     "decode_lpn",
     "decode_pfnn",
     "default_mocap_dir",
@@ -56,6 +61,7 @@ __all__ = [
     "facing_directions",
     "find_feet_and_hands",
     "find_hips_and_shoulders",
+    "fit_normaliser",
     "fit_sinusoids",
     "fit_windows",
     "foot_contacts",
