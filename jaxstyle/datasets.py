@@ -183,6 +183,21 @@ class Dataset:
             keep &= self.split == SPLITS.index(split)
         return np.flatnonzero(keep)
 
+    def mirror_rows(self) -> np.ndarray:
+        """``(N,)`` the row of each row's mirrored twin (same frame of the clip's mirrored copy),
+        or -1 where the clip has no mirrored copy; for the half-mirrored batches of
+        :func:`jaxstyle.batching.balanced_batches` (``mirror_of=``)."""
+        out = np.full(len(self.clip), -1, dtype=np.int64)
+        where = {(s.path, s.start, s.stop, s.mirror): i for i, s in enumerate(self.specs)}
+        for i, s in enumerate(self.specs):
+            j = where.get((s.path, s.start, s.stop, not s.mirror))
+            if j is None:
+                continue
+            rows_i, rows_j = np.flatnonzero(self.clip == i), np.flatnonzero(self.clip == j)
+            # both copies have the same frames, in the same order
+            out[rows_i] = rows_j
+        return out
+
     def normalisers(self) -> tuple[Normaliser, Normaliser]:
         """Input and output statistics over the training rows of all styles (see
         :mod:`jaxstyle.normalise`); reuse them for new few-shot styles."""

@@ -57,6 +57,14 @@ def test_lpn_dataset_layout_split_stats_and_cache(mocap, tmp_path):
     assert again.specs == ds.specs and len(list(tmp_path.glob("lpn-*.npz"))) == 1
     D.build_lpn_dataset(specs[:2], cache_dir=tmp_path)
     assert len(list(tmp_path.glob("lpn-*.npz"))) == 2 and not list(tmp_path.glob("*.tmp"))
+    # half-mirrored batches (2018): each row's twin is the same frame of the mirrored copy
+    twins = ds.mirror_rows()
+    assert (twins >= 0).all() and np.array_equal(twins[twins], np.arange(len(twins)))
+    assert np.array_equal(ds.frame[twins], ds.frame) and all(ds.specs[c].mirror for c in ds.clip[twins[ds.clip == 0]])
+    original_rows = np.flatnonzero(~np.array([sp.mirror for sp in ds.specs])[ds.clip])
+    originals = [np.intersect1d(ds.rows_of_style(s, "train"), original_rows) for s in ds.styles]
+    half = balanced_batches(originals, 32, mirror_of=twins)
+    np.testing.assert_array_equal(half[:, 16:], twins[half[:, :16]])
     # balanced batches over the dataset's styles: one style per batch, in turn
     rows = [ds.rows_of_style(s, "train") for s in ds.styles]
     batches = balanced_batches(rows, 32)
@@ -109,3 +117,10 @@ def test_style_mapping_errors(mocap):
         D.specs_from_folder(mocap / "xia")
     specs = D.specs_from_folder(mocap / "xia", pattern=r"(?P<style>[a-z]+)_01_000")
     assert len(specs) == 8 and not any(s.mirror for s in specs)
+
+
+def test_a_skeleton_without_hands_is_refused(mocap):
+    motion = js.read_bvh(mocap / "100style/Neutral/Neutral_FW.bvh").frames(0, 300)
+    names = tuple(n.replace("Wrist", "Paw") for n in motion.names)
+    with pytest.raises(js.MotionDataError, match="hands"):
+        js.encode_lpn(motion.replace(names=names))
