@@ -54,11 +54,17 @@ def global_transforms(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
 def global_positions(motion: Motion, end_sites: bool = False) -> np.ndarray:
     """Global joint positions ``(T, J, 3)``; with ``end_sites=True``, ``(T, J + E, 3)``."""
     g_rot, g_pos = global_transforms(motion)
-    if not end_sites or len(motion.end_site_parents) == 0:
+    if not end_sites:
         return g_pos
+    return np.concatenate([g_pos, end_site_positions(motion, g_rot, g_pos)], axis=1)
+
+
+def end_site_positions(motion: Motion, g_rot: np.ndarray, g_pos: np.ndarray) -> np.ndarray:
+    """``(T, E, 3)`` end-site positions from already computed global joint transforms."""
     p = motion.end_site_parents
-    ends = g_pos[:, p] + quat.rotate(g_rot[:, p], np.broadcast_to(motion.end_site_offsets, g_pos[:, p].shape))
-    return np.concatenate([g_pos, ends], axis=1)
+    if len(p) == 0:
+        return np.zeros(g_pos.shape[:1] + (0, 3))
+    return g_pos[:, p] + quat.rotate(g_rot[:, p], np.broadcast_to(motion.end_site_offsets, g_pos[:, p].shape))
 
 
 def motion_from_global(skeleton: Motion, rotations_TxJx4: np.ndarray, root_positions_TxRx3: np.ndarray) -> Motion:

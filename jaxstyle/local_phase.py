@@ -171,7 +171,8 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
                  units_per_meter: float | None = None, window: int | None = None,
                  f_min: float = F_MIN_HZ, f_max: float = F_MAX_HZ, num_freqs: int = 64, refine: int = 2,
                  max_amplitude: float | None = MAX_AMPLITUDE,
-                 feet: contacts_lib.FootJoints | None = None) -> LocalPhases:
+                 feet: contacts_lib.FootJoints | None = None,
+                 positions_TxJx3: np.ndarray | None = None) -> LocalPhases:
     """Local phases of the hands and feet of a clip (2022 paper section 4.1).
 
     Args:
@@ -187,6 +188,7 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
       window, f_min, f_max, num_freqs, refine, max_amplitude: see
         :func:`jaxstyle.sinusoid.fit_sinusoids`; ``max_amplitude=None`` fits without a bound.
       feet: ankle and toe joints for contacts; found by name when omitted.
+      positions_TxJx3: global joint positions, if already computed.
     """
     if foot_source not in SOURCES + ("auto",):
         raise ValueError(f"foot_source must be 'contact', 'free' or 'auto', got {foot_source!r}")
@@ -195,7 +197,7 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
     ankle_names = [motion.names[i] for i in feet.ankles]  # left, right
     upm = contacts_lib.estimate_units_per_meter(motion) if units_per_meter is None else float(units_per_meter)
 
-    g_pos = kinematics.global_positions(motion)
+    g_pos = kinematics.global_positions(motion) if positions_TxJx3 is None else positions_TxJx3
     if not np.isfinite(g_pos).all():
         raise MotionDataError("joint positions contain NaN or infinity", motion.source)
     fc = contacts_lib.foot_contacts(motion, height_threshold=height_threshold, speed_threshold=speed_threshold,

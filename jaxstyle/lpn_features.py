@@ -139,10 +139,10 @@ def encode_lpn(motion: Motion, *, phases: LocalPhases | None = None, frames: Cha
         need = (PAST_SAMPLES + FUTURE_SAMPLES - 1) * sample_step(motion.fps) + 2
         raise MotionDataError(f"clip has {motion.num_frames} frames; the LPN trajectory window needs at least {need}",
                               motion.source)
-    phases = phases or local_phases(motion)
     g_rot, g_pos = kinematics.global_transforms(motion)
+    phases = phases or local_phases(motion, positions_TxJx3=g_pos)
     points, rot_idx, names = bone_points(motion)
-    all_pos = kinematics.global_positions(motion, end_sites=True)[:, points]
+    all_pos = np.concatenate([g_pos, kinematics.end_site_positions(motion, g_rot, g_pos)], axis=1)[:, points]
     all_rot = g_rot[:, rot_idx]
     frames = frames or character_frames(motion, positions_TxJx3=g_pos)
     s, t1 = sample_step(motion.fps), t + 1
