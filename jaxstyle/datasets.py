@@ -200,8 +200,17 @@ class Dataset:
 
     def normalisers(self) -> tuple[Normaliser, Normaliser]:
         """Input and output statistics over the training rows of all styles (see
-        :mod:`jaxstyle.normalise`); reuse them for new few-shot styles."""
+        :mod:`jaxstyle.normalise`)."""
         return Normaliser(self.input_mean, self.input_std), Normaliser(self.output_mean, self.output_std)
+
+    def normalised(self, base: "Dataset | None" = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(inputs, outputs)`` normalised with this dataset's statistics, or with ``base``'s.
+
+        A few-shot style is a small dataset of its own; normalise it with the base dataset's
+        statistics (``few_shot.normalised(base)``), as both papers do, never with its own.
+        """
+        x_norm, y_norm = (base or self).normalisers()
+        return x_norm.apply(self.inputs).astype(np.float32), y_norm.apply(self.outputs).astype(np.float32)
 
 
 def load_clip(spec: ClipSpec, fps: float | None = None) -> Motion:

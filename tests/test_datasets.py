@@ -124,3 +124,13 @@ def test_a_skeleton_without_hands_is_refused(mocap):
     names = tuple(n.replace("Wrist", "Paw") for n in motion.names)
     with pytest.raises(js.MotionDataError, match="hands"):
         js.encode_lpn(motion.replace(names=names))
+
+
+def test_few_shot_style_is_normalised_with_base_statistics(mocap):
+    base = D.build_pfnn_dataset([s for s in D.specs_xia(mocap / "xia") if "_01_" in s.path and "neutral" in s.path])
+    few = D.build_pfnn_dataset([s for s in D.specs_xia(mocap / "xia") if "_01_" in s.path and "proud" in s.path])
+    x, y = few.normalised(base)
+    x_norm, y_norm = base.normalisers()
+    np.testing.assert_allclose(x, (few.inputs - x_norm.mean) / x_norm.std, rtol=1e-5, atol=1e-5)
+    assert not np.allclose(x, few.normalised()[0])  # its own statistics would differ
+    assert y.shape == few.outputs.shape
