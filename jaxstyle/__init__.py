@@ -4,7 +4,7 @@ Reimplements Mason et al. 2018 (few-shot PFNN residual adapters) and Mason, Star
 (local motion phases with FiLM). This module re-exports the public API.
 """
 
-from jaxstyle import quat
+from jaxstyle import pfnn, quat
 from jaxstyle.batching import balanced_batches, contiguous_split
 from jaxstyle.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
 from jaxstyle.character_frame import CharacterFrames, character_frames
@@ -78,6 +78,7 @@ __all__ = [
     "mocap_dir",
     "motion_from_global",
     "parse_bvh",
+    "pfnn",
     "quat",
     "read_bvh",
     "read_phase_labels",

@@ -1,0 +1,238 @@
+"""Phase-functioned neural network with residual style adapters (Mason et al. 2018, sections 3 and 6).
+
+Pure functions over parameter pytrees (dicts of arrays):
+
+* :func:`spline_weights`: the cubic Catmull-Rom phase function (Eq. 1a-1c) as 4 weights, one
+  per control point, for any batch of phases. Every phase-functioned quantity is linear in its
+  control points, so layers are evaluated for the 4 control points and their OUTPUTS blended with
+  these weights; no per-sample weight matrix is ever built.
+* :func:`init_pfnn` / :func:`init_adapter`: parameters (uniform ``+-sqrt(6 / (fan_in * fan_out))``
+  weights, the product as in the authors' code, zero biases).
+* :func:`pfnn_apply`: Eq. 4, ``234 -> 512 -> 512 -> 400`` with ELU, a residual adapter on the
+  middle layer with its own dropout mask, or no adapter (the style-agnostic "average motion").
+* :func:`dropout`: dropout whose rate is an array, so sweeps can ``vmap`` over rates.
+* :func:`l1_penalty` and :func:`loss`: MSE plus Eq. 3's L1 terms (``lambda_ag``, ``lambda_s``).
+* :func:`discretise` / :func:`pfnn_apply_table`: the runtime's 50 precomputed phase bins.
+
+Shapes: ``x_BxI`` inputs, ``phase_B`` in cycles ``[0, 1)``, outputs ``y_BxO``. A phase-functioned
+dense layer holds ``W (4, I, O)`` and ``b (4, O)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+
+ADAPTER_KINDS = ("full", "diagonal", "cp")
+NUM_CONTROL_POINTS = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class PFNNConfig:
+    """Sizes of the network (paper: 234 -> 512 -> 512 -> 400) and of its adapters."""
+
+    input_size: int = 234
+    hidden_size: int = 512
+    output_size: int = 400
+    adapter: str = "cp"
+    rank: int = 30
+
+    def __post_init__(self):
+        if self.adapter not in ADAPTER_KINDS:
+            raise ValueError(f"adapter must be one of {ADAPTER_KINDS}, got {self.adapter!r}")
+        if self.rank < 1:
+            raise ValueError(f"rank must be positive, got {self.rank}")
+
+
+# --- the phase function (Eq. 1a-1c) -------------------------------------------------------------
+
+def spline_weights(phase_B: jax.Array) -> jax.Array:
+    """``(B, 4)`` weights of the 4 control points for phases in cycles (Eq. 1a-1c).
+
+    With ``t = 4 p``, ``k = floor(t)`` and ``mu = t - k``, the spline passes through control point
+    ``k`` at ``mu = 0`` and uses points ``k-1, k, k+1, k+2`` (mod 4) with the Catmull-Rom cubic
+    ``(-y0/2 + 3y1/2 - 3y2/2 + y3/2) mu^3 + (y0 - 5y1/2 + 2y2 - y3/2) mu^2 + (-y0/2 + y2/2) mu + y1``.
+    """
+    t = 4.0 * jnp.mod(jnp.asarray(phase_B, dtype=jnp.float32), 1.0)
+    k = jnp.floor(t)
+    mu = t - k
+    mu2, mu3 = mu * mu, mu * mu * mu
+    coef = jnp.stack([-0.5 * mu3 + mu2 - 0.5 * mu,          # y0 = P[k-1]
+                      1.5 * mu3 - 2.5 * mu2 + 1.0,          # y1 = P[k]
+                      -1.5 * mu3 + 2.0 * mu2 + 0.5 * mu,    # y2 = P[k+1]
+                      0.5 * mu3 - 0.5 * mu2], axis=-1)      # y3 = P[k+2]
+    idx = (k.astype(jnp.int32)[..., None] + jnp.arange(-1, 3)) % NUM_CONTROL_POINTS
+    return jnp.sum(jax.nn.one_hot(idx, NUM_CONTROL_POINTS, dtype=coef.dtype) * coef[..., None], axis=-2)
+
+
+def blend(values_4x: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
+    """``(B, ...)`` phase-functioned values from their ``(4, ...)`` control points."""
+    return jnp.tensordot(weights_Bx4, values_4x, axes=1)
+
+
+def pf_dense(layer: dict, h_BxI: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
+    """Phase-functioned dense layer: the 4 control-point layers' outputs, blended (Eq. 1)."""
+    out_Bx4xO = jnp.einsum("bi,kio->bko", h_BxI, layer["W"]) + layer["b"]
+    return jnp.einsum("bk,bko->bo", weights_Bx4, out_Bx4xO)
+
+
+# --- parameters ---------------------------------------------------------------------------------
+
+def _uniform(key, shape, fan_in, fan_out):
+    bound = math.sqrt(6.0 / (fan_in * fan_out))
+    return jax.random.uniform(key, shape, jnp.float32, -bound, bound)
+
+
+def _pf_layer(key, n_in, n_out):
+    return {"W": _uniform(key, (NUM_CONTROL_POINTS, n_in, n_out), n_in, n_out),
+            "b": jnp.zeros((NUM_CONTROL_POINTS, n_out), jnp.float32)}
+
+
+def init_pfnn(key: jax.Array, config: PFNNConfig = PFNNConfig()) -> dict:
+    """Base PFNN parameters: three phase-functioned layers ``l0, l1, l2``."""
+    k0, k1, k2 = jax.random.split(key, 3)
+    c = config
+    return {"l0": _pf_layer(k0, c.input_size, c.hidden_size), "l1": _pf_layer(k1, c.hidden_size, c.hidden_size),
+            "l2": _pf_layer(k2, c.hidden_size, c.output_size)}
+
+
+def init_adapter(key: jax.Array, config: PFNNConfig = PFNNConfig()) -> dict:
+    """One style's residual adapter on the middle layer (section 3.2; random, also for few-shot).
+
+    * full: a phase-spline ``H x H`` matrix and bias: ``{"W": (4, H, H), "b": (4, H)}``;
+    * diagonal: a phase-spline vector and bias: ``{"d": (4, H), "b": (4, H)}``;
+    * cp: ``B (d(p) * (A h)) + b`` with ``A (rank, H)``, a phase-spline core ``d (4, rank)``,
+      ``B (H, rank)`` and a phase-independent bias ``b (H,)``.
+    """
+    h, r = config.hidden_size, config.rank
+    ka, kb, kd = jax.random.split(key, 3)
+    if config.adapter == "full":
+        return _pf_layer(ka, h, h)
+    if config.adapter == "diagonal":
+        return {"d": jax.random.uniform(kd, (NUM_CONTROL_POINTS, h), jnp.float32, -1.0, 1.0) * math.sqrt(6.0 / h),
+                "b": jnp.zeros((NUM_CONTROL_POINTS, h), jnp.float32)}
+    return {"A": _uniform(ka, (r, h), h, r), "d": jax.random.uniform(kd, (NUM_CONTROL_POINTS, r), jnp.float32, -1, 1),
+            "B": _uniform(kb, (h, r), r, h), "b": jnp.zeros((h,), jnp.float32)}
+
+
+def adapter_size(config: PFNNConfig) -> int:
+    """Parameters of one adapter: full ``4 H^2 + 4 H``, diagonal ``8 H``, cp ``2 r H + 4 r + H``."""
+    h, r = config.hidden_size, config.rank
+    return {"full": 4 * h * h + 4 * h, "diagonal": 8 * h, "cp": 2 * r * h + 4 * r + h}[config.adapter]
+
+
+def adapter_kind(adapter: dict) -> str:
+    """``"full"``, ``"diagonal"`` or ``"cp"``, from the adapter's parameter names."""
+    if "A" in adapter:
+        return "cp"
+    return "full" if "W" in adapter else "diagonal"
+
+
+def apply_adapter(adapter: dict, h_BxH: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
+    """The residual ``R_s(h)`` added to the middle layer's pre-activation (section 3.2)."""
+    kind = adapter_kind(adapter)
+    if kind == "full":
+        return pf_dense(adapter, h_BxH, weights_Bx4)
+    if kind == "diagonal":
+        return blend(adapter["d"], weights_Bx4) * h_BxH + blend(adapter["b"], weights_Bx4)
+    core = blend(adapter["d"], weights_Bx4) * (h_BxH @ adapter["A"].T)  # (B, rank)
+    return core @ adapter["B"].T + adapter["b"]
+
+
+# --- dropout, forward, loss ---------------------------------------------------------------------
+
+def dropout(key: jax.Array, x: jax.Array, rate: jax.Array | float) -> jax.Array:
+    """Inverted dropout with ``rate`` as a (traced) array: ``vmap`` over rates works. Rate 0 is the
+    identity; the 2018 code's dropout numbers are KEEP probabilities (0.7 keep = 0.3 rate)."""
+    rate = jnp.asarray(rate, x.dtype)
+    keep = 1.0 - rate
+    mask = jax.random.uniform(key, x.shape) < keep
+    return jnp.where(mask, x / jnp.maximum(keep, 1e-6), 0.0)
+
+
+def pfnn_apply(params: dict, x_BxI: jax.Array, phase_B: jax.Array, *, adapter: dict | None = None,
+               key: jax.Array | None = None, dropout_rate: jax.Array | float = 0.0,
+               adapter_dropout_rate: jax.Array | float | None = None) -> jax.Array:
+    """Eq. 4: ``y = W2(p) drop(h2) + b2(p)``, ``h2 = ELU(W1(p) drop(h1) + b1(p) + R_s(drop'(h1)))``,
+    ``h1 = ELU(W0(p) drop(x) + b0(p))``. ``adapter=None`` drops ``R_s`` (the average motion).
+
+    ``key`` is needed when a dropout rate is non-zero; the adapter path gets its own mask (rate
+    ``adapter_dropout_rate``, default ``dropout_rate``).
+    """
+    w = spline_weights(phase_B)
+    if key is None:
+        key = jax.random.PRNGKey(0)  # only used with zero rates, where masks keep everything
+    k0, k1, k2, ka = jax.random.split(key, 4)
+    ar = dropout_rate if adapter_dropout_rate is None else adapter_dropout_rate
+    h1 = jax.nn.elu(pf_dense(params["l0"], dropout(k0, x_BxI, dropout_rate), w))
+    pre = pf_dense(params["l1"], dropout(k1, h1, dropout_rate), w)
+    if adapter is not None:
+        pre = pre + apply_adapter(adapter, dropout(ka, h1, ar), w)
+    h2 = jax.nn.elu(pre)
+    return pf_dense(params["l2"], dropout(k2, h2, dropout_rate), w)
+
+
+def l1_penalty(tree: dict) -> jax.Array:
+    """Mean over weight tensors of ``mean |W|`` (biases, named ``b``, are free), as in the 2018 code."""
+    leaves = [v for path, v in jax.tree_util.tree_leaves_with_path(tree)
+              if getattr(path[-1], "key", None) != "b"]
+    if not leaves:
+        return jnp.zeros(())
+    return jnp.mean(jnp.stack([jnp.mean(jnp.abs(v)) for v in leaves]))
+
+
+def loss(params: dict, adapter: dict | None, x_BxI, y_BxO, phase_B, *, key=None, dropout_rate=0.0,
+         lambda_ag: float = 0.01, lambda_s: float = 0.01) -> jax.Array:
+    """Eq. 3: MSE on normalised outputs + ``lambda_ag`` L1(base) + ``lambda_s`` L1(adapter)."""
+    pred = pfnn_apply(params, x_BxI, phase_B, adapter=adapter, key=key, dropout_rate=dropout_rate)
+    total = jnp.mean((pred - y_BxO) ** 2) + lambda_ag * l1_penalty(params)
+    if adapter is not None:
+        total = total + lambda_s * l1_penalty(adapter)
+    return total
+
+
+# --- runtime: discretised phase bins (section 7.1) ----------------------------------------------
+
+def discretise(tree: dict, num_bins: int = 50) -> dict:
+    """Every phase-functioned array of ``tree`` (``W``, ``d``, and 2-D ``b``, each ``(4, ...)``)
+    evaluated at the bin centres ``(i + 0.5) / num_bins``, giving ``(num_bins, ...)``;
+    phase-independent arrays (the CP adapter's ``A``, ``B`` and 1-D ``b``) are kept.
+
+    The paper's runtime precomputes 50 bins and indexes them with ``floor(phase * 50)``. jaxstyle
+    evaluates each bin at its centre rather than its start, which halves the largest error.
+    """
+    w = spline_weights((jnp.arange(num_bins) + 0.5) / num_bins)  # (bins, 4)
+
+    def one(path, v):
+        name = getattr(path[-1], "key", None)
+        return blend(v, w) if name in ("W", "d") or (name == "b" and v.ndim == 2) else v
+
+    return jax.tree_util.tree_map_with_path(one, tree)
+
+
+def _table_dense(layer, h, i):
+    return h @ layer["W"][i] + layer["b"][i]
+
+
+def pfnn_apply_table(table: dict, x_BxI: jax.Array, phase: jax.Array | float, *,
+                     adapter_table: dict | None = None) -> jax.Array:
+    """Runtime forward with discretised parameters (:func:`discretise`) for inputs sharing one
+    ``phase`` (the runtime runs batch 1), no dropout: bin ``floor(phase * bins)`` is used as is,
+    so one matrix per layer is read, never one per sample."""
+    bins = table["l0"]["W"].shape[0]
+    i = jnp.clip(jnp.floor(jnp.mod(phase, 1.0) * bins).astype(jnp.int32), 0, bins - 1)
+    h1 = jax.nn.elu(_table_dense(table["l0"], x_BxI, i))
+    pre = _table_dense(table["l1"], h1, i)
+    if adapter_table is not None:
+        kind = adapter_kind(adapter_table)
+        a = adapter_table
+        if kind == "full":
+            pre = pre + _table_dense(a, h1, i)
+        elif kind == "diagonal":
+            pre = pre + a["d"][i] * h1 + a["b"][i]
+        else:
+            pre = pre + (a["d"][i] * (h1 @ a["A"].T)) @ a["B"].T + a["b"]
+    return _table_dense(table["l2"], jax.nn.elu(pre), i)
