@@ -111,7 +111,7 @@ def _mse(params, adapter, x, y, phase):
 
 def validation_losses(params: dict, adapters: dict, data: TrainData, chunk: int = 4096) -> np.ndarray:
     """``(S,)`` MSE (normalised outputs, no dropout, no L1) of each style's validation rows with
-    its own adapter."""
+    its own adapter; NaN for a style without validation rows."""
     out = []
     for s, rows in enumerate(data.val_rows):
         adapter = jax.tree.map(lambda v, s=s: v[s], adapters)
@@ -119,13 +119,14 @@ def validation_losses(params: dict, adapters: dict, data: TrainData, chunk: int 
         for a in range(0, len(rows), chunk):
             r = rows[a:a + chunk]
             total += float(_mse(params, adapter, data.x[r], data.y[r], data.phase[r])) * len(r)
-        out.append(total / max(len(rows), 1))
+        out.append(total / len(rows) if len(rows) else np.nan)
     return np.array(out)
 
 
 def mean_predictor_losses(data: TrainData) -> np.ndarray:
-    """``(S,)`` validation MSE of always predicting the training mean (0 after normalisation)."""
-    return np.array([float(np.mean(data.y[r] ** 2)) for r in data.val_rows])
+    """``(S,)`` validation MSE of always predicting the training mean (0 after normalisation);
+    NaN for a style without validation rows."""
+    return np.array([float(np.mean(data.y[r] ** 2)) if len(r) else np.nan for r in data.val_rows])
 
 
 def _shard(batches: np.ndarray, data_parallel: bool):
@@ -229,5 +230,6 @@ def _append_log(path: Path, epoch: int, train_loss: float, val: np.ndarray, styl
         writer = csv.writer(f)
         if new:
             writer.writerow(["epoch", "train_loss", "val_loss_mean", "seconds"] + [f"val_{s}" for s in styles])
-        writer.writerow([epoch, f"{train_loss:.6f}", f"{float(np.mean(val)):.6f}", f"{seconds:.2f}"]
+        mean = float(np.mean(val[np.isfinite(val)])) if np.isfinite(val).any() else float("nan")
+        writer.writerow([epoch, f"{train_loss:.6f}", f"{mean:.6f}", f"{seconds:.2f}"]
                         + [f"{v:.6f}" for v in val])

@@ -78,3 +78,23 @@ def test_data_parallel_matches_one_device(tmp_path):
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr[-3000:]
+
+
+def test_base_model_on_the_shared_sample_learns(mocap):
+    """The 8 Xia styles + the PFNN captures, full-size network, a short run: validation loss
+    well below predicting the mean (experiments/mason2018_base.py runs the long version)."""
+    import warnings
+
+    from jaxstyle import datasets
+    from jaxstyle.train_pfnn import data_from_dataset
+
+    specs = datasets.specs_xia(mocap / "xia") + datasets.specs_pfnn(mocap / "pfnn_excerpt")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dataset = datasets.build_pfnn_dataset(specs, skip_short=True)
+    data = data_from_dataset(dataset)
+    assert len(data.styles) == 9
+    state = train(data, TrainConfig(epochs=40, batch_size=8), progress=False)
+    val, mean = validation_losses(state["params"], state["adapters"], data), mean_predictor_losses(data)
+    ok = np.isfinite(val)
+    assert np.mean(val[ok]) < 0.5 * np.mean(mean[ok]), (val, mean)
