@@ -124,6 +124,17 @@ def adapter_size(config: PFNNConfig) -> int:
     return {"full": 4 * h * h + 4 * h, "diagonal": 8 * h, "cp": 2 * r * h + 4 * r + h}[config.adapter]
 
 
+def adapter_bytes(config: PFNNConfig, num_bins: int | None = None, itemsize: int = 4) -> int:
+    """Storage of one adapter: control points (``num_bins=None``) or discretised into ``num_bins``
+    phase bins (:func:`discretise`), at ``itemsize`` bytes per value (float32)."""
+    if num_bins is None:
+        return adapter_size(config) * itemsize
+    h, r = config.hidden_size, config.rank
+    values = {"full": num_bins * (h * h + h), "diagonal": num_bins * 2 * h,
+              "cp": 2 * r * h + num_bins * r + h}[config.adapter]
+    return values * itemsize
+
+
 def adapter_kind(adapter: dict) -> str:
     """``"full"``, ``"diagonal"`` or ``"cp"``, from the adapter's parameter names."""
     if "A" in adapter:

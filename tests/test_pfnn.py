@@ -156,3 +156,19 @@ def test_l1_penalty_skips_biases_and_config_checks():
     assert float(pfnn.l1_penalty(tree)) == pytest.approx(1.5)  # mean of 2 and 1
     with pytest.raises(ValueError, match="adapter"):
         pfnn.PFNNConfig(adapter="lora")
+
+
+@pytest.mark.parametrize("kind", ["full", "diagonal", "cp"])
+def test_adapter_bytes_match_the_arrays(kind):
+    config = pfnn.PFNNConfig(adapter=kind)
+    adapter = pfnn.init_adapter(jax.random.PRNGKey(0), config)
+    nbytes = lambda t: sum(v.size * v.dtype.itemsize for v in jax.tree.leaves(t))  # noqa: E731
+    assert nbytes(adapter) == pfnn.adapter_bytes(config)
+    assert nbytes(pfnn.discretise(adapter)) == pfnn.adapter_bytes(config, num_bins=50)
+    # the paper's Table 1 in MiB: full 4.01 / 50.1, diagonal 0.016 / 0.20
+    mib = 2.0 ** 20
+    if kind == "full":
+        assert round(pfnn.adapter_bytes(config) / mib, 2) == 4.01
+        assert round(pfnn.adapter_bytes(config, 50) / mib, 1) == 50.1
+    if kind == "diagonal":
+        assert round(pfnn.adapter_bytes(config) / mib, 3) == 0.016

@@ -98,3 +98,18 @@ def test_base_model_on_the_shared_sample_learns(mocap):
     val, mean = validation_losses(state["params"], state["adapters"], data), mean_predictor_losses(data)
     ok = np.isfinite(val)
     assert np.mean(val[ok]) < 0.5 * np.mean(mean[ok]), (val, mean)
+
+
+def test_finetune_improves_a_new_adapter_with_the_base_frozen():
+    from jaxstyle.train_pfnn import finetune_adapter
+
+    data = synthetic(1)
+    state = train(data, CONFIG, progress=False)
+    fresh = pfnn.init_adapter(jax.random.PRNGKey(9), SMALL)
+    config = TrainConfig(model=SMALL, epochs=30, batch_size=16, learning_rate=3e-3, dropout_rate=0.0)
+    tuned = finetune_adapter(state["params"], fresh, data, 1, config)
+    stacked = jax.tree.map(lambda v: v[None], tuned)
+    before = validation_losses(state["params"], jax.tree.map(lambda v: v[None], fresh), data._replace(
+        val_rows=(data.val_rows[1],)))
+    after = validation_losses(state["params"], stacked, data._replace(val_rows=(data.val_rows[1],)))
+    assert after[0] < 0.5 * before[0]
