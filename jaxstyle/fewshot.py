@@ -14,6 +14,7 @@ tested against.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Sequence
 
 import jax
@@ -27,7 +28,14 @@ from jaxstyle import pfnn
 @dataclasses.dataclass(frozen=True)
 class SweepConfig:
     """Few-shot defaults of the paper and its code: batch 32, Adam 1e-4, 100 epochs, drop rates
-    0.3 / 0.5 / 0.7 (the code's keep probabilities 0.7 / 0.5 / 0.3)."""
+    0.3 / 0.5 / 0.7 (the code's keep probabilities 0.7 / 0.5 / 0.3).
+
+    ``adapter_dropout_only``: a faster mode that differs from the paper. Dropout then hits only the
+    adapter's input, so the frozen network's first layer and the middle layer's main path do not
+    depend on the step: they are computed once per frame (:func:`frozen_activations`) and reused
+    by every step and every (style, rate) pair; each step runs only the adapter and the last
+    layer. The paper also drops units of the frozen layers, which regularises the adapter more.
+    """
 
     model: pfnn.PFNNConfig = pfnn.PFNNConfig()
     epochs: int = 100
@@ -36,6 +44,7 @@ class SweepConfig:
     rates: tuple[float, ...] = (0.3, 0.5, 0.7)
     lambda_s: float = 0.01
     seed: int = 0
+    adapter_dropout_only: bool = False
 
 
 def sweep_batches(rows_per_style: Sequence[np.ndarray], epochs: int, batch_size: int, seed: int = 0
@@ -65,16 +74,39 @@ def sweep_batches(rows_per_style: Sequence[np.ndarray], epochs: int, batch_size:
     return batches, mask
 
 
-def _train_pair(params, x, y, phase, adapter, batches_TxB, mask_T, rate, key, *, learning_rate, lambda_s):
-    """One (style, rate) pair: ``lax.scan`` over steps; masked steps change nothing."""
+def frozen_activations(params: dict, x, phase) -> dict:
+    """Per-frame quantities of the frozen base that no adapter-path dropout mask changes: the
+    spline weights ``w (N, 4)``, ``h1 (N, H)`` and the middle layer's main-path pre-activation
+    ``pre (N, H)``."""
+    w = pfnn.spline_weights(phase)
+    h1 = jax.nn.elu(pfnn.pf_dense(params["l0"], x, w))
+    return {"w": w, "h1": h1, "pre": pfnn.pf_dense(params["l1"], h1, w)}
+
+
+def _cached_loss(params, adapter, cache, y, idx, key, rate, lambda_s):
+    """The adapter-path-only dropout forward from cached activations (see :class:`SweepConfig`)."""
+    w, h1 = cache["w"][idx], cache["h1"][idx]
+    pre = cache["pre"][idx] + pfnn.apply_adapter(adapter, pfnn.dropout(key, h1, rate), w)
+    pred = pfnn.pf_dense(params["l2"], jax.nn.elu(pre), w)
+    return jnp.mean((pred - y[idx]) ** 2) + lambda_s * pfnn.l1_penalty(adapter)
+
+
+def _train_pair(params, x, y, phase, adapter, batches_TxB, mask_T, rate, key, *, learning_rate, lambda_s,
+                cache=None):
+    """One (style, rate) pair: ``lax.scan`` over steps; masked steps change nothing. With
+    ``cache`` (:func:`frozen_activations`), the adapter-path-only dropout mode."""
     optimiser = optax.adam(learning_rate)
+
+    def objective(a, idx, k):
+        if cache is not None:
+            return _cached_loss(params, a, cache, y, idx, k, rate, lambda_s)
+        return pfnn.loss(params, a, x[idx], y[idx], phase[idx], key=k, dropout_rate=rate,
+                         lambda_ag=0.0, lambda_s=lambda_s)
 
     def step(carry, inputs):
         a, opt_state = carry
         idx, real, k = inputs
-        value, grads = jax.value_and_grad(
-            lambda a: pfnn.loss(params, a, x[idx], y[idx], phase[idx], key=k, dropout_rate=rate,
-                                lambda_ag=0.0, lambda_s=lambda_s))(a)
+        value, grads = jax.value_and_grad(objective)(a, idx, k)
         updates, new_opt = optimiser.update(grads, opt_state)
         new_a = optax.apply_updates(a, updates)
         keep = lambda new, old: jnp.where(real, new, old)  # noqa: E731
@@ -95,29 +127,46 @@ def _init_pair(config: SweepConfig, key):
     return pfnn.init_adapter(k_init, config.model), k_train
 
 
+@functools.partial(jax.jit, static_argnames=("learning_rate", "adapter_dropout_only"))
+def _run_grid(params, x, y, phase, adapters_SxR, keys_SxR, rates_R, batches_SxTxB, mask_SxT, lambda_s, *,
+              learning_rate, adapter_dropout_only):
+    """The compiled sweep: vmap over styles of vmap over rates of the per-pair scan."""
+    cache = frozen_activations(params, x, phase) if adapter_dropout_only else None
+
+    def pair(a, r, k, batches, mask):
+        return _train_pair(params, x, y, phase, a, batches, mask, r, k, cache=cache, learning_rate=learning_rate,
+                           lambda_s=lambda_s)
+
+    over_rates = jax.vmap(pair, in_axes=(0, 0, 0, None, None))
+    return jax.vmap(over_rates, in_axes=(0, None, 0, 0, 0))(adapters_SxR, rates_R, keys_SxR, batches_SxTxB, mask_SxT)
+
+
+@functools.partial(jax.jit, static_argnames=("learning_rate", "adapter_dropout_only"))
+def _run_one(params, x, y, phase, adapter, batches_TxB, mask_T, rate, key, lambda_s, *, learning_rate,
+             adapter_dropout_only):
+    cache = frozen_activations(params, x, phase) if adapter_dropout_only else None
+    return _train_pair(params, x, y, phase, adapter, batches_TxB, mask_T, rate, key, cache=cache,
+                       learning_rate=learning_rate, lambda_s=lambda_s)
+
+
 def finetune_one(params: dict, x, y, phase, batches_TxB, mask_T, rate: float, key: jax.Array,
                  config: SweepConfig) -> tuple[dict, jax.Array]:
-    """Train one fresh adapter for one (style, rate) pair, exactly as inside the sweep."""
+    """Train one fresh adapter for one (style, rate) pair, with the sweep's initialisation, keys
+    and data order but no vmap: the reference the sweep is tested against."""
     adapter, k_train = _init_pair(config, key)
-    run = jax.jit(lambda a, b, m, r, k: _train_pair(params, x, y, phase, a, b, m, r, k,
-                                                    learning_rate=config.learning_rate, lambda_s=config.lambda_s))
-    return run(adapter, jnp.asarray(batches_TxB), jnp.asarray(mask_T), jnp.float32(rate), k_train)
+    return _run_one(params, x, y, phase, adapter, jnp.asarray(batches_TxB), jnp.asarray(mask_T), jnp.float32(rate),
+                    k_train, jnp.float32(config.lambda_s), learning_rate=config.learning_rate,
+                    adapter_dropout_only=config.adapter_dropout_only)
 
 
 def finetune_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: SweepConfig
                    ) -> tuple[dict, jax.Array]:
     """Adapters ``(S, R, ...)`` and per-step losses ``(S, R, T)`` for every style x rate, in one
-    compiled program. ``x, y, phase`` hold all styles' normalised rows (with the base statistics);
-    ``batches``/``mask`` come from :func:`sweep_batches`."""
+    compiled program (compiled once per shape and config). ``x, y, phase`` hold all styles'
+    normalised rows (with the base statistics); ``batches``/``mask`` come from :func:`sweep_batches`."""
     num_styles, num_rates = batches_SxTxB.shape[0], len(config.rates)
     keys = jnp.stack([jnp.stack([pair_key(config.seed, s, r) for r in range(num_rates)]) for s in range(num_styles)])
-    init = jax.vmap(jax.vmap(lambda k: _init_pair(config, k)))(keys)
-    rates = jnp.asarray(config.rates, jnp.float32)
-
-    def per_style(adapters_R, k_R, batches, mask):
-        return jax.vmap(lambda a, r, k: _train_pair(params, x, y, phase, a, batches, mask, r, k,
-                                                    learning_rate=config.learning_rate,
-                                                    lambda_s=config.lambda_s))(adapters_R, rates, k_R)
-
-    run = jax.jit(jax.vmap(per_style))
-    return run(init[0], init[1], jnp.asarray(batches_SxTxB), jnp.asarray(mask_SxT))
+    adapters, train_keys = jax.vmap(jax.vmap(lambda k: _init_pair(config, k)))(keys)
+    return _run_grid(params, x, y, phase, adapters, train_keys, jnp.asarray(config.rates, jnp.float32),
+                     jnp.asarray(batches_SxTxB), jnp.asarray(mask_SxT), jnp.float32(config.lambda_s),
+                     learning_rate=config.learning_rate, adapter_dropout_only=config.adapter_dropout_only)

@@ -63,3 +63,33 @@ def test_sweep_lowers_the_training_loss_and_leaves_the_base_alone():
     assert last < 0.8 * first
     for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(params), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_adapter_dropout_only_mode_matches_its_definition():
+    """Cached frozen activations give the forward of pfnn_apply with dropout on the adapter path
+    only, and the sweep in that mode still equals single runs."""
+    x, y, phase, rows = _data(2)
+    config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.5),
+                                 adapter_dropout_only=True)
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
+    adapter = pfnn.init_adapter(jax.random.PRNGKey(1), SMALL)
+    cache = fewshot.frozen_activations(params, x, phase)
+    idx = jnp.arange(20)
+    key = jax.random.PRNGKey(3)
+    cached = fewshot._cached_loss(params, adapter, cache, y, idx, key, 0.5, 0.0)
+    # the definition: frozen layers without dropout, the adapter's input dropped with `key`
+    w = pfnn.spline_weights(phase[idx])
+    h1 = jax.nn.elu(pfnn.pf_dense(params["l0"], x[idx], w))
+    pre = pfnn.pf_dense(params["l1"], h1, w) + pfnn.apply_adapter(adapter, pfnn.dropout(key, h1, 0.5), w)
+    want = jnp.mean((pfnn.pf_dense(params["l2"], jax.nn.elu(pre), w) - y[idx]) ** 2)
+    np.testing.assert_allclose(cached, want, rtol=1e-5)
+    no_drop = fewshot._cached_loss(params, adapter, cache, y, idx, key, 0.0, 0.0)
+    full = jnp.mean((pfnn.pfnn_apply(params, x[idx], phase[idx], adapter=adapter) - y[idx]) ** 2)
+    np.testing.assert_allclose(no_drop, full, rtol=1e-5)
+
+    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    adapters, _ = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
+    single, _ = fewshot.finetune_one(params, x, y, phase, batches[1], mask[1], 0.5, fewshot.pair_key(0, 1, 1), config)
+    for got, want in zip(jax.tree.leaves(adapters), jax.tree.leaves(single), strict=True):
+        scale = np.abs(np.asarray(want)).max() + 1e-12
+        assert np.abs(np.asarray(got[1, 1]) - np.asarray(want)).max() / scale <= 1e-4
