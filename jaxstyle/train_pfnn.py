@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import functools
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -26,7 +25,7 @@ import numpy as np
 import optax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxstyle import pfnn
+from jaxstyle import fewshot, pfnn
 from jaxstyle.batching import balanced_batches
 from jaxstyle.checkpoint import Checkpointer
 
@@ -236,37 +235,20 @@ def _append_log(path: Path, epoch: int, train_loss: float, val: np.ndarray, styl
                         + [f"{v:.6f}" for v in val])
 
 
-@functools.partial(jax.jit, static_argnames=("learning_rate",))
-def _finetune_scan(params, adapter, x, y, phase, batches, key, dropout_rate, lambda_s, learning_rate):
-    optimiser = optax.adam(learning_rate)
-
-    def step(carry, inputs):
-        a, opt_state = carry
-        idx, k = inputs
-        value, grads = jax.value_and_grad(
-            lambda a: pfnn.loss(params, a, x[idx], y[idx], phase[idx], key=k, dropout_rate=dropout_rate,
-                                lambda_ag=0.0, lambda_s=lambda_s))(a)
-        updates, opt_state = optimiser.update(grads, opt_state)
-        return (optax.apply_updates(a, updates), opt_state), value
-
-    keys = jax.random.split(key, batches.shape[0])
-    (adapter, _), losses = jax.lax.scan(step, (adapter, optimiser.init(adapter)), (batches, keys))
-    return adapter, losses
-
-
 def finetune_adapter(params: dict, adapter: dict, data: TrainData, style: int, config: TrainConfig) -> dict:
     """Train only ``adapter`` on one style's training rows, the base frozen (2018 few-shot).
 
     ``config.epochs`` passes over the rows in shuffled batches of ``config.batch_size``, all inside
-    one jitted ``lax.scan`` (compiled once per shape); gradients are taken with respect to the
-    adapter alone.
+    one jitted ``lax.scan`` (compiled once per shape; the same program as one pair of
+    :func:`jaxstyle.fewshot.finetune_sweep`); gradients are taken with respect to the adapter alone.
     """
     rows = np.asarray(data.train_rows[style])
     per_epoch = max(len(rows) // config.batch_size, 1)
     rng = np.random.default_rng(config.seed)
     batches = np.concatenate([rng.permutation(rows)[:per_epoch * config.batch_size].reshape(per_epoch, -1)
                               for _ in range(config.epochs)])
-    adapter, _ = _finetune_scan(params, adapter, jnp.asarray(data.x), jnp.asarray(data.y), jnp.asarray(data.phase),
-                                jnp.asarray(batches), jax.random.PRNGKey(config.seed),
-                                jnp.float32(config.dropout_rate), jnp.float32(config.lambda_s), config.learning_rate)
+    adapter, _ = fewshot._run_one(params, jnp.asarray(data.x), jnp.asarray(data.y), jnp.asarray(data.phase), adapter,
+                                  jnp.asarray(batches), jnp.ones(len(batches), bool), jnp.float32(config.dropout_rate),
+                                  jax.random.PRNGKey(config.seed), jnp.float32(config.lambda_s),
+                                  learning_rate=config.learning_rate, adapter_dropout_only=False)
     return adapter
