@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxstyle import pfnn
 
@@ -159,14 +160,32 @@ def finetune_one(params: dict, x, y, phase, batches_TxB, mask_T, rate: float, ke
                     adapter_dropout_only=config.adapter_dropout_only)
 
 
-def finetune_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: SweepConfig
-                   ) -> tuple[dict, jax.Array]:
+def finetune_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: SweepConfig, *,
+                   shard: bool = False) -> tuple[dict, jax.Array]:
     """Adapters ``(S, R, ...)`` and per-step losses ``(S, R, T)`` for every style x rate, in one
     compiled program (compiled once per shape and config). ``x, y, phase`` hold all styles'
-    normalised rows (with the base statistics); ``batches``/``mask`` come from :func:`sweep_batches`."""
+    normalised rows (with the base statistics); ``batches``/``mask`` come from :func:`sweep_batches`.
+
+    ``shard=True`` spreads the style axis over all devices (a 1-D ``jax.sharding`` mesh; the base
+    and the data are replicated), padding it with fully masked styles to a multiple of the device
+    count; the result is the same as on one device.
+    """
+    batches_SxTxB, mask_SxT = np.asarray(batches_SxTxB), np.asarray(mask_SxT)
     num_styles, num_rates = batches_SxTxB.shape[0], len(config.rates)
-    keys = jnp.stack([jnp.stack([pair_key(config.seed, s, r) for r in range(num_rates)]) for s in range(num_styles)])
+    padded = num_styles
+    if shard:
+        padded = -(-num_styles // jax.device_count()) * jax.device_count()
+        extra = padded - num_styles
+        pad = np.zeros((extra,) + batches_SxTxB.shape[1:], batches_SxTxB.dtype)
+        batches_SxTxB = np.concatenate([batches_SxTxB, pad])
+        mask_SxT = np.concatenate([mask_SxT, np.zeros((extra,) + mask_SxT.shape[1:], bool)])
+    keys = jnp.stack([jnp.stack([pair_key(config.seed, s, r) for r in range(num_rates)]) for s in range(padded)])
     adapters, train_keys = jax.vmap(jax.vmap(lambda k: _init_pair(config, k)))(keys)
-    return _run_grid(params, x, y, phase, adapters, train_keys, jnp.asarray(config.rates, jnp.float32),
-                     jnp.asarray(batches_SxTxB), jnp.asarray(mask_SxT), jnp.float32(config.lambda_s),
-                     learning_rate=config.learning_rate, adapter_dropout_only=config.adapter_dropout_only)
+    batches, mask = jnp.asarray(batches_SxTxB), jnp.asarray(mask_SxT)
+    if shard:
+        grid = NamedSharding(Mesh(np.array(jax.devices()), ("grid",)), PartitionSpec("grid"))
+        adapters, train_keys, batches, mask = jax.device_put((adapters, train_keys, batches, mask), grid)
+    adapters, losses = _run_grid(params, x, y, phase, adapters, train_keys, jnp.asarray(config.rates, jnp.float32),
+                                 batches, mask, jnp.float32(config.lambda_s), learning_rate=config.learning_rate,
+                                 adapter_dropout_only=config.adapter_dropout_only)
+    return jax.tree.map(lambda v: v[:num_styles], adapters), losses[:num_styles]

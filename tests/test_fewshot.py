@@ -93,3 +93,32 @@ def test_adapter_dropout_only_mode_matches_its_definition():
     for got, want in zip(jax.tree.leaves(adapters), jax.tree.leaves(single), strict=True):
         scale = np.abs(np.asarray(want)).max() + 1e-12
         assert np.abs(np.asarray(got[1, 1]) - np.asarray(want)).max() / scale <= 1e-4
+
+
+def test_sharded_grid_matches_one_device():
+    """2 forced host devices (the flag must precede importing jax, hence a subprocess)."""
+    import os
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(f"""
+        import sys, numpy as np, jax
+        sys.path.insert(0, {os.getcwd()!r})
+        assert jax.device_count() == 2
+        from tests.test_fewshot import _data, SMALL
+        from jaxstyle import fewshot, pfnn
+        x, y, phase, rows = _data()
+        config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.5))
+        params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
+        b, m = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+        one, _ = fewshot.finetune_sweep(params, x, y, phase, b, m, config)
+        two, _ = fewshot.finetune_sweep(params, x, y, phase, b, m, config, shard=True)  # 3 styles padded to 4
+        for a, c in zip(jax.tree.leaves(one), jax.tree.leaves(two)):
+            assert a.shape == c.shape
+            np.testing.assert_allclose(a, c, rtol=1e-4, atol=1e-6)
+        print("ok")
+    """)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr[-3000:]
