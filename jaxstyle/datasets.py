@@ -213,9 +213,10 @@ class Dataset:
         return x_norm.apply(self.inputs).astype(np.float32), y_norm.apply(self.outputs).astype(np.float32)
 
 
-def load_clip(spec: ClipSpec, fps: float | None = None) -> Motion:
-    """The motion of a spec: cut, resampled to ``fps`` if given, mirrored if asked."""
+def _load(spec: ClipSpec, fps: float | None) -> tuple[Motion, float]:
+    """The motion of a spec (see :func:`load_clip`) and the file's own frame rate."""
     motion = read_bvh(spec.path)
+    source_fps = motion.fps
     stop = motion.num_frames if spec.stop is None else min(spec.stop, motion.num_frames)
     if not 0 <= spec.start < stop:
         raise MotionDataError(f"frame range [{spec.start}, {spec.stop}) is empty for a clip of "
@@ -223,7 +224,12 @@ def load_clip(spec: ClipSpec, fps: float | None = None) -> Motion:
     motion = motion.frames(spec.start, stop)
     if fps is not None and motion.fps != fps:
         motion = transform.resample(motion, fps)
-    return transform.mirror(motion) if spec.mirror else motion
+    return (transform.mirror(motion) if spec.mirror else motion), source_fps
+
+
+def load_clip(spec: ClipSpec, fps: float | None = None) -> Motion:
+    """The motion of a spec: cut, resampled to ``fps`` if given, mirrored if asked."""
+    return _load(spec, fps)[0]
 
 
 def _cache_key(kind: str, specs: Sequence[ClipSpec], settings: dict) -> str:
@@ -320,24 +326,30 @@ def _progress(items, desc: str, progress: bool):
     return tqdm(items, desc=desc, unit="clip")
 
 
-def _drop_short(specs, fps, skip_short):
-    """Specs long enough for the trajectory window (at ``fps``), or an error naming the first that is not."""
-    kept = []
-    for spec in specs:
-        motion = read_bvh(spec.path)
-        stop = motion.num_frames if spec.stop is None else min(spec.stop, motion.num_frames)
-        frames = (stop - spec.start) * ((fps or motion.fps) / motion.fps)
-        if len(valid_frames(int(frames), fps or motion.fps)) > 0:
+def _long_enough(motion: Motion, spec: ClipSpec, skip_short: bool) -> bool:
+    """Whether a loaded clip covers the trajectory window; if not, a warning (``skip_short``) or
+    an error naming the file."""
+    if len(valid_frames(motion.num_frames, motion.fps)) > 0:
+        return True
+    if skip_short:
+        warnings.warn(f"{spec.path}: {motion.num_frames} frames, shorter than the trajectory window; skipped",
+                      stacklevel=4)
+        return False
+    raise MotionDataError(f"clip has {motion.num_frames} frames at {motion.fps:g} fps, shorter than the "
+                          "trajectory window (pass skip_short=True to leave such clips out)", spec.path)
+
+
+def _encode_all(specs, fps, skip_short, progress, desc, encode):
+    """``(kept specs, per-clip arrays)``: each clip read once, short ones skipped or refused."""
+    kept, per_clip = [], []
+    for spec in _progress(specs, desc, progress):
+        motion, source_fps = _load(spec, fps)
+        if _long_enough(motion, spec, skip_short):
             kept.append(spec)
-        elif skip_short:
-            warnings.warn(f"{spec.path}: {int(frames)} frames, shorter than the trajectory window; skipped",
-                          stacklevel=3)
-        else:
-            raise MotionDataError(f"clip has {int(frames)} frames at {fps or motion.fps:g} fps, shorter than the "
-                                  "trajectory window (pass skip_short=True to leave such clips out)", spec.path)
+            per_clip.append(encode(spec, motion, source_fps))
     if not kept:
         raise ValueError("every clip is shorter than the trajectory window")
-    return kept
+    return kept, per_clip
 
 
 def build_pfnn_dataset(specs: Sequence[ClipSpec], *, fps: float = 60.0, cache_dir: str | os.PathLike | None = None,
@@ -350,21 +362,18 @@ def build_pfnn_dataset(specs: Sequence[ClipSpec], *, fps: float = 60.0, cache_di
     if not specs:
         raise ValueError("no clips")
 
+    def encode(spec, motion, source_fps):
+        if spec.phase_labels:
+            labels, _ = read_phase_labels(spec.path)
+            idx = np.round((spec.start + np.arange(motion.num_frames)) * source_fps / fps).astype(int)
+            phase = labels[np.minimum(idx, len(labels) - 1)]
+        else:
+            phase = global_phase(motion)
+        x, y, t = encode_pfnn(motion, phase)
+        return x, y, phase[t][:, None], t, None
+
     def build():
-        kept = _drop_short(specs, fps, skip_short)
-        per_clip = []
-        for spec in _progress(kept, "PFNN features", progress):
-            motion = load_clip(spec, fps)
-            if spec.phase_labels:
-                labels, _ = read_phase_labels(spec.path)
-                src = read_bvh(spec.path).fps
-                idx = np.minimum(np.round((spec.start + np.arange(motion.num_frames)) * src / fps).astype(int),
-                                 len(labels) - 1)
-                phase = labels[idx]
-            else:
-                phase = global_phase(motion)
-            x, y, t = encode_pfnn(motion, phase)
-            per_clip.append((x, y, phase[t][:, None], t, None))
+        kept, per_clip = _encode_all(specs, fps, skip_short, progress, "PFNN features", encode)
         return _assemble(kept, per_clip, _pfnn_groups, with_clips=False, split=split)
 
     settings = {"fps": fps, "skip_short": skip_short, "split": dataclasses.asdict(split)}
@@ -379,12 +388,12 @@ def build_lpn_dataset(specs: Sequence[ClipSpec], *, cache_dir: str | os.PathLike
     if not specs:
         raise ValueError("no clips")
 
+    def encode(spec, motion, source_fps):
+        f = encode_lpn(motion)
+        return f.inputs, f.outputs, f.phases, f.frames, f.clips
+
     def build():
-        kept = _drop_short(specs, None, skip_short)
-        per_clip = []
-        for spec in _progress(kept, "LPN features", progress):
-            f = encode_lpn(load_clip(spec))
-            per_clip.append((f.inputs, f.outputs, f.phases, f.frames, f.clips))
+        kept, per_clip = _encode_all(specs, None, skip_short, progress, "LPN features", encode)
         return _assemble(kept, per_clip, _lpn_groups, with_clips=True, split=split)
 
     settings = {"skip_short": skip_short, "split": dataclasses.asdict(split)}
