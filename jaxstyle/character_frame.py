@@ -70,6 +70,19 @@ def rotations_to_local(rotations: np.ndarray, frames: CharacterFrames,
     return quat.mul(np.broadcast_to(inv, rotations.shape), rotations)
 
 
+def from_local(points: np.ndarray, frames: CharacterFrames) -> np.ndarray:
+    """Inverse of :func:`to_local`: points ``(N, ..., 3)`` given in frames ``N`` back to global."""
+    shape = (-1,) + (1,) * (points.ndim - 2)
+    return rotate_yaw(points, frames.yaw.reshape(shape)) + frames.origin.reshape(shape + (3,))
+
+
+def rotations_from_local(forward: np.ndarray, up: np.ndarray, frames: CharacterFrames) -> np.ndarray:
+    """Global rotations ``(N, J, 4)`` from forward/up vectors ``(N, J, 3)`` given in frames ``N``
+    (inverse of :func:`rotations_to_local` followed by ``quat.forward``/``quat.up``)."""
+    to_global = np.broadcast_to(yaw_quaternion(frames.yaw)[:, None], forward.shape[:2] + (4,))
+    return quat.mul(to_global, quat.from_forward_up(forward, up))
+
+
 def trajectory_features(frames: CharacterFrames, centre: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """``(N, 4 K)`` trajectory of frames ``centre + offsets``, each row in its centre frame:
     x (K) | z (K) of the frame origins, then x (K) | z (K) of their facing directions."""

@@ -36,11 +36,12 @@ from jaxstyle.character_frame import (
     CharacterFrames,
     character_frames,
     directions_to_local,
+    from_local,
     rotate_yaw,
+    rotations_from_local,
     rotations_to_local,
     to_local,
     trajectory_features,
-    yaw_quaternion,
 )
 from jaxstyle.errors import MotionDataError
 from jaxstyle.local_phase import LocalPhases, local_phases
@@ -190,9 +191,8 @@ def decode_lpn(outputs: np.ndarray, skeleton: Motion, *, origin: np.ndarray | No
         yaws[i + 1] = yaws[i] + np.arctan2(dir_local[i, 0], dir_local[i, 2])
     cur = CharacterFrames(origins[:-1], yaws[:-1])
     local_pos = y[:, g["joint_position"]].reshape(n, -1, 3)[:, :num_joints]
-    g_pos = rotate_yaw(local_pos, cur.yaw[:, None]) + cur.origin[:, None]
+    g_pos = from_local(local_pos, cur)
     fwd = y[:, g["joint_forward"]].reshape(n, -1, 3)[:, :num_joints]
     up = y[:, g["joint_up"]].reshape(n, -1, 3)[:, :num_joints]
-    g_rot = quat.mul(np.broadcast_to(yaw_quaternion(cur.yaw)[:, None], (n, num_joints, 4)),
-                     quat.from_forward_up(fwd, up))
+    g_rot = rotations_from_local(fwd, up, cur)
     return kinematics.motion_from_global(skeleton, g_rot, g_pos[:, skeleton.parents < 0])

@@ -34,12 +34,13 @@ from jaxstyle.character_frame import (
     CharacterFrames,
     character_frames,
     directions_to_local,
+    from_local,
     rotate_yaw,
+    rotations_from_local,
     rotations_to_local,
     to_local,
     trajectory_features,
     wrap_angle,
-    yaw_quaternion,
 )
 from jaxstyle.errors import MotionDataError
 from jaxstyle.motion import Motion
@@ -161,11 +162,10 @@ def decode_pfnn(outputs: np.ndarray, skeleton: Motion, *, origin: np.ndarray | N
     origins = start + np.cumsum(steps, axis=0)
     frames = CharacterFrames(origins, yaws)
     local_pos = y[:, g["joint_position"]].reshape(n, num_joints, 3)
-    g_pos = rotate_yaw(local_pos, yaws[:, None]) + origins[:, None]
+    g_pos = from_local(local_pos, frames)
     fwd = y[:, g["joint_forward"]].reshape(n, num_joints, 3)
     up = y[:, g["joint_up"]].reshape(n, num_joints, 3)
-    g_rot = quat.mul(np.broadcast_to(yaw_quaternion(frames.yaw)[:, None], (n, num_joints, 4)),
-                     quat.from_forward_up(fwd, up))
+    g_rot = rotations_from_local(fwd, up, frames)
     phases = np.mod(phase + np.cumsum(y[:, 3]), 1.0)
     return kinematics.motion_from_global(skeleton, g_rot, g_pos[:, skeleton.parents < 0]), phases
 
