@@ -133,6 +133,29 @@ def test_dropout_rate_is_an_array_and_vmaps():
     np.testing.assert_allclose(out.mean(1), 1.0, atol=0.15)  # inverted dropout keeps the mean
 
 
+def test_dropout_rate_resolution_and_odd_shapes():
+    """8 bits per unit: the dropped fraction is the rate rounded to 1/256 (binomial bounds on
+    200,000 units), kept units scaled by the rounded keep probability; odd sizes work."""
+    key = jax.random.PRNGKey(3)
+    x = jnp.ones((400, 500))
+    for rate in (0.3, 0.5, 0.123, 1.0):
+        out = np.asarray(pfnn.dropout(key, x, rate))
+        q = round(rate * 256) / 256
+        dropped = (out == 0).mean()
+        assert abs(dropped - q) <= 5 * np.sqrt(q * (1 - q) / x.size) + 1e-12
+        if q < 1:
+            np.testing.assert_allclose(out[out != 0], 1.0 / (1.0 - q), rtol=1e-6)
+    odd = jnp.arange(7 * 33, dtype=jnp.float32).reshape(7, 33)
+    out = pfnn.dropout(key, odd, 0.5)
+    assert out.shape == odd.shape
+    kept = np.asarray(out) != 0
+    np.testing.assert_allclose(np.asarray(out)[kept], 2 * np.asarray(odd)[kept])
+    # different keys, different masks; the same key, the same mask
+    a, b = pfnn.dropout(key, x, 0.5), pfnn.dropout(jax.random.PRNGKey(4), x, 0.5)
+    assert (np.asarray(a) != np.asarray(b)).mean() > 0.4
+    np.testing.assert_array_equal(a, pfnn.dropout(key, x, 0.5))
+
+
 def test_adapter_path_has_its_own_mask_and_none_is_the_average_motion():
     config = pfnn.PFNNConfig(**SMALL, adapter="cp")
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), config)
