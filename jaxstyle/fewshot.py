@@ -9,6 +9,14 @@ Ragged styles: every style gets ``epochs * max(1, rows // batch)`` real steps; s
 padded to the longest with masked steps, which leave the adapter and the optimiser state
 untouched. :func:`finetune_one` is the same training for one pair, the reference the sweep is
 tested against.
+
+Keys and data order depend only on the seed and the style's index (:func:`pair_key`,
+:func:`sweep_batches`), so appending a style leaves every other style's adapter unchanged (the
+lifelong property). The steps may run in chunks (``chunk_steps``) for a progress bar, with the
+same result. Speed options (:class:`SweepConfig`): dropout on the adapter path only, with the
+frozen activations computed once; bfloat16 products in the frozen layers. The style axis can be
+sharded over all devices (``shard=True``). Model selection, reports and the closed-loop check
+are in :mod:`jaxstyle.selection`.
 """
 
 from __future__ import annotations
@@ -36,6 +44,13 @@ class SweepConfig:
     depend on the step: they are computed once per frame (:func:`frozen_activations`) and reused
     by every step and every (style, rate) pair; each step runs only the adapter and the last
     layer. The paper also drops units of the frozen layers, which regularises the adapter more.
+
+    ``matmul_dtype="bfloat16"``: the frozen base's layer products run in bfloat16 (weights cast
+    once per call, activations per step, float32 accumulation; the adapter, its gradients and
+    Adam stay float32). Faster where the hardware has bfloat16 matrix units (GPU tensor cores,
+    CPUs with AMX); results differ from float32 by the bfloat16 rounding (about 3 significant
+    digits) of the frozen layers' inputs and weights. ``benchmarks/sweep.py`` measures the speed
+    and ``experiments/fewshot_sweep.py --matmul-dtype bfloat16`` the effect on the losses.
     """
 
     model: pfnn.PFNNConfig = pfnn.PFNNConfig()
@@ -46,6 +61,11 @@ class SweepConfig:
     lambda_s: float = 0.01
     seed: int = 0
     adapter_dropout_only: bool = False
+    matmul_dtype: str = "float32"
+
+    def __post_init__(self):
+        if self.matmul_dtype not in ("float32", "bfloat16"):
+            raise ValueError(f"matmul_dtype must be 'float32' or 'bfloat16', got {self.matmul_dtype!r}")
 
 
 def sweep_batches(rows_per_style: Sequence[np.ndarray], epochs: int, batch_size: int, seed: int = 0
@@ -92,30 +112,33 @@ def _cached_loss(params, adapter, cache, y, idx, key, rate, lambda_s):
     return jnp.mean((pred - y[idx]) ** 2) + lambda_s * pfnn.l1_penalty(adapter)
 
 
-def _train_pair(params, x, y, phase, adapter, batches_TxB, mask_T, rate, key, *, learning_rate, lambda_s,
-                cache=None):
-    """One (style, rate) pair: ``lax.scan`` over steps; masked steps change nothing. With
-    ``cache`` (:func:`frozen_activations`), the adapter-path-only dropout mode."""
+def _pair_loss(params, adapter, x, y, phase, idx, key, rate, lambda_s, cache):
+    """Eq. 3 without the frozen base's L1 term (a constant here): MSE + ``lambda_s`` L1(adapter)."""
+    if cache is not None:
+        return _cached_loss(params, adapter, cache, y, idx, key, rate, lambda_s)
+    pred = pfnn.pfnn_apply(params, x[idx], phase[idx], adapter=adapter, key=key, dropout_rate=rate)
+    return jnp.mean((pred - y[idx]) ** 2) + lambda_s * pfnn.l1_penalty(adapter)
+
+
+def _train_pair(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, keys_T, rate, *, learning_rate,
+                lambda_s, cache=None):
+    """Steps of one (style, rate) pair: ``lax.scan`` over ``batches_TxB`` with one PRNG key per
+    step; masked steps change nothing. With ``cache`` (:func:`frozen_activations`), the
+    adapter-path-only dropout mode. Returns the adapter, the optimiser state and per-step losses
+    (NaN on masked steps)."""
     optimiser = optax.adam(learning_rate)
 
-    def objective(a, idx, k):
-        if cache is not None:
-            return _cached_loss(params, a, cache, y, idx, k, rate, lambda_s)
-        return pfnn.loss(params, a, x[idx], y[idx], phase[idx], key=k, dropout_rate=rate,
-                         lambda_ag=0.0, lambda_s=lambda_s)
-
     def step(carry, inputs):
-        a, opt_state = carry
+        a, opt = carry
         idx, real, k = inputs
-        value, grads = jax.value_and_grad(objective)(a, idx, k)
-        updates, new_opt = optimiser.update(grads, opt_state)
+        value, grads = jax.value_and_grad(_pair_loss, argnums=1)(params, a, x, y, phase, idx, k, rate, lambda_s, cache)
+        updates, new_opt = optimiser.update(grads, opt)
         new_a = optax.apply_updates(a, updates)
         keep = lambda new, old: jnp.where(real, new, old)  # noqa: E731
-        return (jax.tree.map(keep, new_a, a), jax.tree.map(keep, new_opt, opt_state)), jnp.where(real, value, jnp.nan)
+        return (jax.tree.map(keep, new_a, a), jax.tree.map(keep, new_opt, opt)), jnp.where(real, value, jnp.nan)
 
-    keys = jax.random.split(key, batches_TxB.shape[0])
-    (adapter, _), losses = jax.lax.scan(step, (adapter, optimiser.init(adapter)), (batches_TxB, mask_T, keys))
-    return adapter, losses
+    (adapter, opt_state), losses = jax.lax.scan(step, (adapter, opt_state), (batches_TxB, mask_T, keys_T))
+    return adapter, opt_state, losses
 
 
 def pair_key(seed: int, style: int, rate_index: int) -> jax.Array:
@@ -123,69 +146,108 @@ def pair_key(seed: int, style: int, rate_index: int) -> jax.Array:
     return jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), style), rate_index)
 
 
-def _init_pair(config: SweepConfig, key):
+def _init_pair(config: SweepConfig, key, num_steps: int):
+    """A fresh adapter, its Adam state and one dropout key per step, from the pair's key."""
     k_init, k_train = jax.random.split(key)
-    return pfnn.init_adapter(k_init, config.model), k_train
+    adapter = pfnn.init_adapter(k_init, config.model)
+    return adapter, optax.adam(config.learning_rate).init(adapter), jax.random.split(k_train, num_steps)
 
 
-@functools.partial(jax.jit, static_argnames=("learning_rate", "adapter_dropout_only"))
-def _run_grid(params, x, y, phase, adapters_SxR, keys_SxR, rates_R, batches_SxTxB, mask_SxT, lambda_s, *,
-              learning_rate, adapter_dropout_only):
-    """The compiled sweep: vmap over styles of vmap over rates of the per-pair scan."""
+@functools.partial(jax.jit, static_argnames=("learning_rate", "adapter_dropout_only", "matmul_dtype"),
+                   donate_argnums=(4, 5))
+def _run_grid(params, x, y, phase, adapters_SxR, opt_SxR, keys_SxRxT, rates_R, batches_SxTxB, mask_SxT, lambda_s,
+              *, learning_rate, adapter_dropout_only, matmul_dtype="float32"):
+    """The compiled sweep (one chunk of steps): vmap over styles of vmap over rates of the
+    per-pair scan; the base is closed over, i.e. broadcast to every pair."""
+    params = pfnn.cast_weights(params, jnp.dtype(matmul_dtype))
     cache = frozen_activations(params, x, phase) if adapter_dropout_only else None
 
-    def pair(a, r, k, batches, mask):
-        return _train_pair(params, x, y, phase, a, batches, mask, r, k, cache=cache, learning_rate=learning_rate,
+    def pair(a, o, k, r, batches, mask):
+        return _train_pair(params, x, y, phase, a, o, batches, mask, k, r, cache=cache, learning_rate=learning_rate,
                            lambda_s=lambda_s)
 
-    over_rates = jax.vmap(pair, in_axes=(0, 0, 0, None, None))
-    return jax.vmap(over_rates, in_axes=(0, None, 0, 0, 0))(adapters_SxR, rates_R, keys_SxR, batches_SxTxB, mask_SxT)
+    over_rates = jax.vmap(pair, in_axes=(0, 0, 0, 0, None, None))
+    over_styles = jax.vmap(over_rates, in_axes=(0, 0, 0, None, 0, 0))
+    return over_styles(adapters_SxR, opt_SxR, keys_SxRxT, rates_R, batches_SxTxB, mask_SxT)
 
 
-@functools.partial(jax.jit, static_argnames=("learning_rate", "adapter_dropout_only"))
-def _run_one(params, x, y, phase, adapter, batches_TxB, mask_T, rate, key, lambda_s, *, learning_rate,
-             adapter_dropout_only):
+@functools.partial(jax.jit, static_argnames=("learning_rate", "adapter_dropout_only", "matmul_dtype"))
+def _run_one(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, keys_T, rate, lambda_s, *, learning_rate,
+             adapter_dropout_only, matmul_dtype="float32"):
+    params = pfnn.cast_weights(params, jnp.dtype(matmul_dtype))
     cache = frozen_activations(params, x, phase) if adapter_dropout_only else None
-    return _train_pair(params, x, y, phase, adapter, batches_TxB, mask_T, rate, key, cache=cache,
+    return _train_pair(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, keys_T, rate, cache=cache,
                        learning_rate=learning_rate, lambda_s=lambda_s)
 
 
 def finetune_one(params: dict, x, y, phase, batches_TxB, mask_T, rate: float, key: jax.Array,
                  config: SweepConfig) -> tuple[dict, jax.Array]:
     """Train one fresh adapter for one (style, rate) pair, with the sweep's initialisation, keys
-    and data order but no vmap: the reference the sweep is tested against."""
-    adapter, k_train = _init_pair(config, key)
-    return _run_one(params, x, y, phase, adapter, jnp.asarray(batches_TxB), jnp.asarray(mask_T), jnp.float32(rate),
-                    k_train, jnp.float32(config.lambda_s), learning_rate=config.learning_rate,
-                    adapter_dropout_only=config.adapter_dropout_only)
+    and data order but no vmap: the reference the sweep is tested against. Returns the adapter
+    and the per-step losses."""
+    adapter, opt_state, keys = _init_pair(config, key, len(batches_TxB))
+    adapter, _, losses = _run_one(params, x, y, phase, adapter, opt_state, jnp.asarray(batches_TxB),
+                                  jnp.asarray(mask_T), keys, jnp.float32(rate), jnp.float32(config.lambda_s),
+                                  learning_rate=config.learning_rate, adapter_dropout_only=config.adapter_dropout_only,
+                                  matmul_dtype=config.matmul_dtype)
+    return adapter, losses
 
 
 def finetune_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: SweepConfig, *,
-                   shard: bool = False) -> tuple[dict, jax.Array]:
+                   shard: bool = False, chunk_steps: int | None = None, progress: bool = False
+                   ) -> tuple[dict, jax.Array]:
     """Adapters ``(S, R, ...)`` and per-step losses ``(S, R, T)`` for every style x rate, in one
-    compiled program (compiled once per shape and config). ``x, y, phase`` hold all styles'
-    normalised rows (with the base statistics); ``batches``/``mask`` come from :func:`sweep_batches`.
+    compiled program. ``x, y, phase`` hold all styles' normalised rows (with the base
+    statistics); ``batches``/``mask`` come from :func:`sweep_batches`.
+
+    ``chunk_steps`` runs the steps in chunks of that many (the same program, compiled once, called
+    ``ceil(T / chunk_steps)`` times, the last chunk padded with masked steps), so ``progress=True``
+    can move a bar between chunks; the result is the same as in one call.
 
     ``shard=True`` spreads the style axis over all devices (a 1-D ``jax.sharding`` mesh; the base
     and the data are replicated), padding it with fully masked styles to a multiple of the device
     count; the result is the same as on one device.
     """
     batches_SxTxB, mask_SxT = np.asarray(batches_SxTxB), np.asarray(mask_SxT)
-    num_styles, num_rates = batches_SxTxB.shape[0], len(config.rates)
+    num_styles, num_steps = batches_SxTxB.shape[:2]
+    num_rates = len(config.rates)
     padded = num_styles
     if shard:
         padded = -(-num_styles // jax.device_count()) * jax.device_count()
-        extra = padded - num_styles
-        pad = np.zeros((extra,) + batches_SxTxB.shape[1:], batches_SxTxB.dtype)
-        batches_SxTxB = np.concatenate([batches_SxTxB, pad])
-        mask_SxT = np.concatenate([mask_SxT, np.zeros((extra,) + mask_SxT.shape[1:], bool)])
-    keys = jnp.stack([jnp.stack([pair_key(config.seed, s, r) for r in range(num_rates)]) for s in range(padded)])
-    adapters, train_keys = jax.vmap(jax.vmap(lambda k: _init_pair(config, k)))(keys)
-    batches, mask = jnp.asarray(batches_SxTxB), jnp.asarray(mask_SxT)
+    chunk = num_steps if chunk_steps is None else max(1, min(int(chunk_steps), num_steps))
+    total = -(-num_steps // chunk) * chunk
+    batches = np.zeros((padded, total) + batches_SxTxB.shape[2:], batches_SxTxB.dtype)
+    mask = np.zeros((padded, total), bool)
+    batches[:num_styles, :num_steps], mask[:num_styles, :num_steps] = batches_SxTxB, mask_SxT
+
+    keys = jax.vmap(jax.vmap(lambda s, r: pair_key(config.seed, s, r), in_axes=(None, 0)), in_axes=(0, None))(
+        jnp.arange(padded), jnp.arange(num_rates))
+    adapters, opt_state, step_keys = jax.vmap(jax.vmap(lambda k: _init_pair(config, k, num_steps)))(keys)
+    step_keys = jnp.pad(step_keys, ((0, 0), (0, 0), (0, total - num_steps), (0, 0)))
+    batches, mask = jnp.asarray(batches), jnp.asarray(mask)
     if shard:
         grid = NamedSharding(Mesh(np.array(jax.devices()), ("grid",)), PartitionSpec("grid"))
-        adapters, train_keys, batches, mask = jax.device_put((adapters, train_keys, batches, mask), grid)
-    adapters, losses = _run_grid(params, x, y, phase, adapters, train_keys, jnp.asarray(config.rates, jnp.float32),
-                                 batches, mask, jnp.float32(config.lambda_s), learning_rate=config.learning_rate,
-                                 adapter_dropout_only=config.adapter_dropout_only)
-    return jax.tree.map(lambda v: v[:num_styles], adapters), losses[:num_styles]
+        adapters, opt_state, step_keys, batches, mask = jax.device_put(
+            (adapters, opt_state, step_keys, batches, mask), grid)
+    rates = jnp.asarray(config.rates, jnp.float32)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=num_steps, desc=f"sweep {num_styles} styles x {num_rates} rates", unit="step")
+    losses = []
+    for a in range(0, total, chunk):
+        b = a + chunk
+        adapters, opt_state, chunk_losses = _run_grid(
+            params, x, y, phase, adapters, opt_state, step_keys[:, :, a:b], rates, batches[:, a:b], mask[:, a:b],
+            jnp.float32(config.lambda_s), learning_rate=config.learning_rate,
+            adapter_dropout_only=config.adapter_dropout_only, matmul_dtype=config.matmul_dtype)
+        losses.append(chunk_losses)
+        if bar is not None:
+            jax.block_until_ready(chunk_losses)
+            bar.update(min(b, num_steps) - a)
+            bar.set_postfix(loss=f"{float(jnp.nanmean(chunk_losses)):.4f}")
+    if bar is not None:
+        bar.close()
+    losses = jnp.concatenate(losses, axis=2)[:num_styles, :, :num_steps]
+    return jax.tree.map(lambda v: v[:num_styles], adapters), losses

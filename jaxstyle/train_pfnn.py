@@ -247,8 +247,10 @@ def finetune_adapter(params: dict, adapter: dict, data: TrainData, style: int, c
     rng = np.random.default_rng(config.seed)
     batches = np.concatenate([rng.permutation(rows)[:per_epoch * config.batch_size].reshape(per_epoch, -1)
                               for _ in range(config.epochs)])
-    adapter, _ = fewshot._run_one(params, jnp.asarray(data.x), jnp.asarray(data.y), jnp.asarray(data.phase), adapter,
-                                  jnp.asarray(batches), jnp.ones(len(batches), bool), jnp.float32(config.dropout_rate),
-                                  jax.random.PRNGKey(config.seed), jnp.float32(config.lambda_s),
-                                  learning_rate=config.learning_rate, adapter_dropout_only=False)
+    opt_state = optax.adam(config.learning_rate).init(adapter)
+    keys = jax.random.split(jax.random.PRNGKey(config.seed), len(batches))
+    adapter, _, _ = fewshot._run_one(params, jnp.asarray(data.x), jnp.asarray(data.y), jnp.asarray(data.phase),
+                                     adapter, opt_state, jnp.asarray(batches), jnp.ones(len(batches), bool), keys,
+                                     jnp.float32(config.dropout_rate), jnp.float32(config.lambda_s),
+                                     learning_rate=config.learning_rate, adapter_dropout_only=False)
     return adapter

@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from jaxstyle import fewshot, pfnn
 
@@ -122,3 +123,38 @@ def test_sharded_grid_matches_one_device():
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr[-3000:]
+
+
+def test_bfloat16_matmuls_round_only_the_frozen_products():
+    """``cast_weights`` + ``pf_dense``: the product of bfloat16-rounded inputs and weights,
+    accumulated in float32 (numpy float64 reference on the rounded values)."""
+    rng = np.random.default_rng(5)
+    layer = {"W": jnp.asarray(rng.normal(size=(4, 6, 5)), jnp.float32), "b": jnp.asarray(rng.normal(size=(4, 5)),
+                                                                                         jnp.float32)}
+    h = jnp.asarray(rng.normal(size=(7, 6)), jnp.float32)
+    w = pfnn.spline_weights(jnp.asarray(rng.uniform(size=7), jnp.float32))
+    low = pfnn.cast_weights({"l": layer}, jnp.bfloat16)["l"]
+    assert low["W"].dtype == jnp.bfloat16 and low["b"].dtype == jnp.float32
+    got = pfnn.pf_dense(low, h, w)
+    assert got.dtype == jnp.float32
+    rh = np.asarray(h.astype(jnp.bfloat16).astype(jnp.float32), np.float64)
+    rw = np.asarray(low["W"].astype(jnp.float32), np.float64)
+    want = np.einsum("bk,bko->bo", np.asarray(w, np.float64),
+                     np.einsum("bi,kio->bko", rh, rw) + np.asarray(layer["b"], np.float64))
+    np.testing.assert_allclose(np.asarray(got), want, rtol=1e-5, atol=1e-5)
+    assert np.abs(np.asarray(got) - np.asarray(pfnn.pf_dense(layer, h, w))).max() > 1e-4  # it did round
+
+
+def test_bfloat16_sweep_equals_its_single_runs():
+    x, y, phase, rows = _data(4)
+    config = fewshot.SweepConfig(model=SMALL, epochs=2, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.5),
+                                 matmul_dtype="bfloat16")
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
+    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    adapters, _ = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
+    single, _ = fewshot.finetune_one(params, x, y, phase, batches[2], mask[2], 0.5, fewshot.pair_key(0, 2, 1), config)
+    for got, want in zip(jax.tree.leaves(adapters), jax.tree.leaves(single), strict=True):
+        scale = np.abs(np.asarray(want)).max() + 1e-12
+        assert np.abs(np.asarray(got[2, 1]) - np.asarray(want)).max() / scale <= 1e-4
+    with pytest.raises(ValueError, match="matmul_dtype"):
+        fewshot.SweepConfig(matmul_dtype="float16")
