@@ -1,0 +1,197 @@
+"""Closed-loop PFNN synthesis along a user path (Holden et al. 2017's runtime, as used by Mason
+et al. 2018 section 7.1), as one jitted ``lax.scan`` over frames.
+
+Each frame the input is assembled from the network's own previous output, exactly in the layout
+of :mod:`jaxstyle.pfnn_features`:
+
+* past trajectory (offsets -60 .. -10 frames): the character's own generated ground frames;
+* future trajectory (offsets 0 .. 50): the network's previous prediction blended with the user's
+  path, the user's weight growing with the offset, ``w_k = 1 - (1 - k / 5) ** blend_bias``
+  (0 for the current sample, 1 for the farthest), as in the PFNN demo's trajectory blending;
+* joint positions and velocities: the previous output, already in the new character frame.
+
+The root then moves by the predicted velocity and turn, the phase advances by the predicted
+(non-negative) change. Everything is in file units; the user's path is given as a ground
+velocity and a facing direction per frame (:func:`path_controls`, :func:`turning_path`), relative
+to where the character stands, so the loop is closed: the user steers, the character follows.
+
+Shapes: one character per call; ``jax.vmap`` over ``state``/``controls``/``adapter`` gives
+many (the base parameters broadcast).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxstyle import pfnn
+from jaxstyle.normalise import Normaliser
+from jaxstyle.pfnn_features import FUTURE_SAMPLES, PAST_SAMPLES, PFNNLayout
+
+HISTORY = PAST_SAMPLES * 10 + 1  # ground frames t-60 .. t, at the 60 fps sample spacing of 10
+SPACING = 10
+
+
+class RolloutState(NamedTuple):
+    """What the loop carries: ground frames of the last 61 frames ``hist_xz (61, 2)``,
+    ``hist_yaw (61,)`` (global, the last is the current frame), the ``phase``, joint positions
+    and velocities ``(3J,)`` in the current frame, and the predicted future trajectory
+    ``future (4, 6)`` (x, z, direction x, direction z at offsets 0 .. 50) in the current frame."""
+
+    hist_xz: jax.Array
+    hist_yaw: jax.Array
+    phase: jax.Array
+    joint_pos: jax.Array
+    joint_vel: jax.Array
+    future: jax.Array
+
+
+class Controls(NamedTuple):
+    """Per frame ``t``: the user's path ``offsets (T, 6, 2)``, the ground displacement from frame
+    ``t`` to ``t + 10 k`` (k = 0 .. 5), global, and the desired facing yaw ``yaw (T, 6)`` there."""
+
+    offsets: jax.Array
+    yaw: jax.Array
+
+
+class Rollout(NamedTuple):
+    """Per generated frame: global joint ``positions (T, J, 3)``, ground ``origin (T, 2)`` (x, z),
+    ``yaw (T,)``, ``phase (T,)`` and the de-normalised network ``outputs (T, O)`` (which
+    :func:`jaxstyle.decode_pfnn` turns into a :class:`jaxstyle.Motion`)."""
+
+    positions: jax.Array
+    origin: jax.Array
+    yaw: jax.Array
+    phase: jax.Array
+    outputs: jax.Array
+
+
+def _rot(x, z, a):
+    """Ground vectors ``(x, z)`` rotated by yaw ``a`` (the convention of
+    :func:`jaxstyle.character_frame.rotate_yaw`)."""
+    c, s = jnp.cos(a), jnp.sin(a)
+    return x * c + z * s, -x * s + z * c
+
+
+def path_controls(velocity_Tx2, yaw_T, fps: float = 60.0) -> Controls:
+    """:class:`Controls` from a desired ground velocity (units per second, global x and z) and
+    facing yaw (radians) per frame. Past the last frame the last values hold."""
+    v = np.asarray(velocity_Tx2, dtype=np.float64)
+    yaw = np.asarray(yaw_T, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 2 or yaw.shape != (len(v),):
+        raise ValueError(f"velocity must be (T, 2) and yaw (T,), got {v.shape} and {yaw.shape}")
+    if not (np.isfinite(v).all() and np.isfinite(yaw).all()):
+        raise ValueError("path velocity and yaw must be finite")
+    pad = FUTURE_SAMPLES * SPACING
+    v = np.concatenate([v, np.repeat(v[-1:], pad, axis=0)])
+    yaw = np.concatenate([yaw, np.repeat(yaw[-1:], pad)])
+    disp = np.concatenate([np.zeros((1, 2)), np.cumsum(v / fps, axis=0)])  # displacement before frame i
+    t = np.arange(len(velocity_Tx2))[:, None] + SPACING * np.arange(FUTURE_SAMPLES)[None]
+    offsets = disp[t] - disp[t[:, :1]]
+    return Controls(jnp.asarray(offsets, jnp.float32), jnp.asarray(yaw[t], jnp.float32))
+
+
+def turning_path(num_frames: int, speed: float, turn_rate: float, fps: float = 60.0,
+                 start_yaw: float = 0.0) -> Controls:
+    """Walk at ``speed`` (units/s) while turning at ``turn_rate`` (radians/s; 0 is a straight
+    line), facing the direction of travel."""
+    yaw = start_yaw + turn_rate * np.arange(num_frames) / fps
+    velocity = speed * np.stack([np.sin(yaw), np.cos(yaw)], axis=-1)
+    return path_controls(velocity, yaw, fps)
+
+
+def initial_state(x_row: np.ndarray, phase: float, num_joints: int) -> RolloutState:
+    """The loop's start from one (de-normalised) PFNN input row, e.g. a frame of real data: the
+    character stands at the global origin facing +Z, with that row's pose and its past and
+    future trajectory (past frames between the 10-frame samples interpolated linearly)."""
+    layout = PFNNLayout(num_joints)
+    x = np.asarray(x_row, dtype=np.float64)
+    if x.shape != (layout.input_size,):
+        raise ValueError(f"x_row must have shape ({layout.input_size},) for {num_joints} joints, got {x.shape}")
+    n = PAST_SAMPLES + FUTURE_SAMPLES
+    tx, tz, dx, dz = x[0:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:4 * n]
+    yaw = np.unwrap(np.arctan2(dx, dz))
+    yaw -= yaw[PAST_SAMPLES]  # the current sample faces +Z exactly
+    sample_t = np.arange(-PAST_SAMPLES, 1) * SPACING
+    frames = np.arange(-(HISTORY - 1), 1)
+    hist_xz = np.stack([np.interp(frames, sample_t, tx[:PAST_SAMPLES + 1]),
+                        np.interp(frames, sample_t, tz[:PAST_SAMPLES + 1])], axis=-1)
+    hist_xz -= hist_xz[-1]
+    hist_yaw = np.interp(frames, sample_t, yaw[:PAST_SAMPLES + 1])
+    f = slice(PAST_SAMPLES, n)
+    future = np.stack([tx[f], tz[f], dx[f], dz[f]])
+    j3 = 3 * num_joints
+    pos, vel = x[4 * n:4 * n + j3], x[4 * n + j3:4 * n + 2 * j3]
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    return RolloutState(f32(hist_xz), f32(hist_yaw), f32(np.mod(phase, 1.0)), f32(pos), f32(vel), f32(future))
+
+
+def assemble_input(state: RolloutState, controls_t: tuple[jax.Array, jax.Array], blend_bias: float = 1.5) -> jax.Array:
+    """The de-normalised input ``(48 + 6J,)`` of the current frame from the carried state and the
+    user's path at this frame (``(offsets (6, 2), yaw (6,))``, one row of :class:`Controls`)."""
+    offsets, user_yaw = controls_t
+    origin, yaw = state.hist_xz[-1], state.hist_yaw[-1]
+    # past samples, in the current frame
+    past = slice(0, HISTORY - 1, SPACING)
+    px, pz = _rot(state.hist_xz[past, 0] - origin[0], state.hist_xz[past, 1] - origin[1], -yaw)
+    pdx, pdz = _rot(jnp.sin(state.hist_yaw[past]), jnp.cos(state.hist_yaw[past]), -yaw)
+    # future: the previous prediction blended with the user's path
+    ux, uz = _rot(offsets[:, 0], offsets[:, 1], -yaw)
+    udx, udz = _rot(jnp.sin(user_yaw), jnp.cos(user_yaw), -yaw)
+    w = 1.0 - (1.0 - jnp.arange(FUTURE_SAMPLES) / (FUTURE_SAMPLES - 1)) ** blend_bias
+    fx, fz, fdx, fdz = (state.future[i] + w * (u - state.future[i]) for i, u in enumerate((ux, uz, udx, udz)))
+    norm = jnp.maximum(jnp.sqrt(fdx ** 2 + fdz ** 2), 1e-6)
+    fdx, fdz = fdx / norm, fdz / norm
+    return jnp.concatenate([px, fx, pz, fz, pdx, fdx, pdz, fdz, state.joint_pos, state.joint_vel])
+
+
+def advance(state: RolloutState, y: jax.Array, num_joints: int) -> tuple[RolloutState, Rollout]:
+    """Move the character by one de-normalised output ``y (28 + 12J,)``: the next state and the
+    generated frame."""
+    origin, yaw = state.hist_xz[-1], state.hist_yaw[-1]
+    gx, gz = _rot(y[0], y[1], yaw)
+    new_origin = origin + jnp.stack([gx, gz])
+    new_yaw = yaw + y[2]
+    new_phase = jnp.mod(state.phase + jnp.maximum(y[3], 0.0), 1.0)
+    g = PFNNLayout(num_joints).output_groups
+    local = y[g["joint_position"]].reshape(num_joints, 3)
+    wx, wz = _rot(local[:, 0], local[:, 2], new_yaw)
+    positions = jnp.stack([wx + new_origin[0], local[:, 1], wz + new_origin[1]], axis=-1)
+    traj = y[g["trajectory_position"].start:g["trajectory_direction"].stop].reshape(4, FUTURE_SAMPLES)
+    new_state = RolloutState(jnp.concatenate([state.hist_xz[1:], new_origin[None]]),
+                             jnp.concatenate([state.hist_yaw[1:], new_yaw[None]]), new_phase,
+                             y[g["joint_position"]], y[g["joint_velocity"]], traj)
+    return new_state, Rollout(positions, new_origin, new_yaw, new_phase, y)
+
+
+def _step(params, adapter, x_norm, y_norm, num_joints, blend_bias, state: RolloutState, control):
+    x = assemble_input(state, control, blend_bias)
+    y_n = pfnn.pfnn_apply(params, ((x - x_norm[0]) / x_norm[1])[None], state.phase[None], adapter=adapter)[0]
+    return advance(state, y_n * y_norm[1] + y_norm[0], num_joints)
+
+
+def _as_arrays(norm: Normaliser | tuple) -> tuple[jax.Array, jax.Array]:
+    mean, std = (norm.mean, norm.std) if isinstance(norm, Normaliser) else norm
+    return jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32)
+
+
+def rollout(params: dict, adapter: dict | None, x_norm: Normaliser, y_norm: Normaliser, state: RolloutState,
+            controls: Controls, *, blend_bias: float = 1.5) -> Rollout:
+    """Generate ``T = len(controls.offsets)`` frames closed-loop (jitted; ``vmap`` it for many
+    characters or adapters). ``x_norm``/``y_norm`` are the base model's statistics."""
+    num_joints = state.joint_pos.shape[-1] // 3
+    return _rollout(params, adapter, _as_arrays(x_norm), _as_arrays(y_norm), state, controls,
+                    num_joints=num_joints, blend_bias=float(blend_bias))
+
+
+@functools.partial(jax.jit, static_argnames=("num_joints", "blend_bias"))
+def _rollout(params, adapter, x_norm, y_norm, state, controls, *, num_joints, blend_bias):
+    def step(s, c):
+        return _step(params, adapter, x_norm, y_norm, num_joints, blend_bias, s, c)
+
+    _, out = jax.lax.scan(step, state, (controls.offsets, controls.yaw))
+    return out

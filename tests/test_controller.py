@@ -1,0 +1,110 @@
+"""The closed-loop PFNN controller: its inputs and root updates agree with the feature encoder."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxstyle as js
+from jaxstyle import controller, kinematics, metrics, pfnn
+from jaxstyle.character_frame import CharacterFrames, rotate_yaw, to_local
+from jaxstyle.datasets import ClipSpec, load_clip
+from jaxstyle.normalise import Normaliser
+
+
+def test_path_controls_of_a_straight_walk():
+    fps, speed = 60.0, 1.5
+    c = controller.turning_path(100, speed, 0.0, fps, start_yaw=np.pi / 2)  # walk along +X
+    offsets = np.asarray(c.offsets)
+    want = speed * 10 * np.arange(6) / fps
+    np.testing.assert_allclose(offsets[:, :, 0], np.broadcast_to(want, (100, 6)), atol=1e-5)
+    np.testing.assert_allclose(offsets[:, :, 1], 0.0, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(c.yaw), np.pi / 2, atol=1e-6)
+    with pytest.raises(ValueError, match="finite"):
+        controller.path_controls(np.full((5, 2), np.nan), np.zeros(5))
+
+
+def test_turning_path_integrates_an_arc():
+    fps, speed, rate = 60.0, 1.2, np.deg2rad(45)
+    c = controller.turning_path(200, speed, rate, fps)
+    # offset 50 frames ahead of frame 0 on a circle of radius speed / rate (first-order integration)
+    t = 50 / fps
+    r = speed / rate
+    want = np.array([r * (1 - np.cos(rate * t)), r * np.sin(rate * t)])
+    np.testing.assert_allclose(np.asarray(c.offsets[0, 5]), want, rtol=0.02)
+
+
+@pytest.fixture(scope="module")
+def clip(mocap):
+    m = load_clip(ClipSpec(str(mocap / "100style/Drunk/Drunk_SW.bvh"), "Drunk", 0, 900), fps=60.0)
+    phase = js.global_phase(m)
+    x, y, t = js.encode_pfnn(m, phase)
+    return m, phase, x, y, t
+
+
+def test_teacher_forced_loop_reproduces_the_encoded_inputs(clip):
+    """Fed the real outputs, the loop must rebuild the real inputs (once its 60-frame history is
+    real) and the real global joint positions: the controller and encoder agree exactly."""
+    m, phase, x, y, t = clip
+    frames = js.character_frames(m)
+    t0, n = t[0], 100
+    idx = t[:n][:, None] + 10 * np.arange(6)[None]
+    disp = rotate_yaw(frames.origin[idx] - frames.origin[t[:n]][:, None], np.full(idx.shape, -frames.yaw[t0]))
+    controls = controller.Controls(jnp.asarray(disp[..., [0, 2]], jnp.float32),
+                                   jnp.asarray(frames.yaw[idx] - frames.yaw[t0], jnp.float32))
+    state = controller.initial_state(x[0], phase[t0], m.num_joints)
+    start = CharacterFrames(frames.origin[[t0]], frames.yaw[[t0]])
+    g_pos = kinematics.global_positions(m)
+    for i in range(n):
+        built = np.asarray(controller.assemble_input(state, (controls.offsets[i], controls.yaw[i])))
+        if i >= controller.HISTORY - 1:
+            np.testing.assert_allclose(built, x[i], atol=1e-3 * np.abs(x[i]).max())
+        else:  # before that the history is interpolated between the 10-frame samples
+            np.testing.assert_allclose(built[24:], x[i][24:], atol=1e-3 * np.abs(x[i]).max())  # all but past x/z
+        state, frame = controller.advance(state, jnp.asarray(y[i], jnp.float32), m.num_joints)
+        real = to_local(g_pos[t[i] + 1][None], start, np.array([0]))[0]
+        np.testing.assert_allclose(np.asarray(frame.positions), real, atol=1e-3 * np.abs(real).max())
+
+
+def test_rollout_vmaps_over_adapters_and_is_finite(clip):
+    m, phase, x, y, t = clip
+    config = pfnn.PFNNConfig(input_size=x.shape[1], hidden_size=32, output_size=y.shape[1], rank=4)
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), config)
+    adapters = jax.vmap(lambda k: pfnn.init_adapter(k, config))(jax.random.split(jax.random.PRNGKey(1), 3))
+    x_norm = Normaliser(x.mean(0), x.std(0) + 1e-3)
+    y_norm = Normaliser(y.mean(0), y.std(0) + 1e-3)
+    state = controller.initial_state(x[0], phase[t[0]], m.num_joints)
+    path = controller.turning_path(40, 100.0, np.deg2rad(30))
+    many = jax.vmap(lambda a: controller.rollout(params, a, x_norm, y_norm, state, path))(adapters)
+    assert many.positions.shape == (3, 40, m.num_joints, 3)
+    assert np.isfinite(np.asarray(many.positions)).all()
+    for k in (0, 2):
+        one = controller.rollout(params, jax.tree.map(lambda v, k=k: v[k], adapters), x_norm, y_norm, state, path)
+        np.testing.assert_allclose(np.asarray(many.positions[k]), np.asarray(one.positions), rtol=1e-4, atol=1e-2)
+    # the recorded outputs decode (numpy decode_pfnn, the reference) to the same root path
+    decoded, _ = js.decode_pfnn(np.asarray(one.outputs), m)
+    np.testing.assert_allclose(np.asarray(one.positions)[:, 0], kinematics.global_positions(decoded)[:, 0],
+                               atol=1e-2 * np.abs(np.asarray(one.positions)).max())
+
+
+def test_real_motion_metrics_are_plausible(clip):
+    m, phase, x, y, t = clip
+    g_pos = kinematics.global_positions(m)
+    err = metrics.bone_length_errors(g_pos, m)
+    assert err.max() < 1e-6  # forward kinematics keeps bone lengths exactly
+    stretched = g_pos.copy()
+    stretched[:, 1:] *= 1.2
+    assert metrics.bone_length_errors(stretched, m).mean() > 0.01
+    upm = js.estimate_units_per_meter(m)
+    real, floor = metrics.reference_foot_stats(y, m, 60.0, units_per_meter=upm)
+    assert real.contact_fraction > 0.9 and real.skating < 0.3
+    same = metrics.positions_foot_stats(g_pos[t[0] + 1:t[-1] + 2], m, 60.0, floor, units_per_meter=upm)
+    assert abs(same.contact_fraction - real.contact_fraction) < 0.02
+    assert abs(same.skating - real.skating) < 0.02
+    # a character gliding forward at 1 m/s with the same poses skates at about 1 m/s more
+    glide = g_pos.copy()
+    glide[:, :, 2] += upm * np.arange(len(g_pos))[:, None] / 60.0
+    slid = metrics.positions_foot_stats(glide, m, 60.0, floor, units_per_meter=upm)
+    assert slid.skating > real.skating + 0.5
