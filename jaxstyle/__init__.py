@@ -4,13 +4,15 @@ Reimplements Mason et al. 2018 (few-shot PFNN residual adapters) and Mason, Star
 (local motion phases with FiLM). This module re-exports the public API.
 """
 
-from jaxstyle import pfnn, quat
+from jaxstyle import controller, fewshot, metrics, pfnn, quat, selection
 from jaxstyle.batching import balanced_batches, contiguous_split
 from jaxstyle.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
 from jaxstyle.character_frame import CharacterFrames, character_frames
 from jaxstyle.contacts import FootContacts, FootJoints, estimate_units_per_meter, foot_contacts, joint_contacts
+from jaxstyle.controller import rollout, turning_path
 from jaxstyle.data import default_mocap_dir, mocap_dir, read_phase_labels
 from jaxstyle.errors import JaxstyleError, MotionDataError
+from jaxstyle.fewshot import SweepConfig, finetune_sweep, sweep_batches
 from jaxstyle.kinematics import (
     bone_lengths,
     facing_directions,
@@ -28,6 +30,7 @@ from jaxstyle.motion import Motion
 from jaxstyle.normalise import Normaliser, fit_normaliser
 from jaxstyle.pfnn_features import PFNNLayout, decode_pfnn, encode_pfnn
 from jaxstyle.phase import circular_distance, footsteps, global_phase
+from jaxstyle.selection import RolloutCheck, SweepResult, fewshot_sweep, load_adapter, write_report
 from jaxstyle.sinusoid import SinusoidFit, fit_sinusoids, fit_windows
 from jaxstyle.skeleton import find_feet_and_hands, find_hips_and_shoulders, mirror_pairs
 from jaxstyle.transform import mirror, resample, rotate, scale, set_up_axis
@@ -46,12 +49,16 @@ __all__ = [
     "MotionDataError",
     "Normaliser",
     "PFNNLayout",
+    "RolloutCheck",
     "SinusoidFit",
+    "SweepConfig",
+    "SweepResult",
     "balanced_batches",
     "bone_lengths",
     "character_frames",
     "circular_distance",
     "contiguous_split",
+    "controller",
     "decode_lpn",
     "decode_pfnn",
     "default_mocap_dir",
@@ -59,8 +66,11 @@ __all__ = [
     "encode_pfnn",
     "estimate_units_per_meter",
     "facing_directions",
+    "fewshot",
+    "fewshot_sweep",
     "find_feet_and_hands",
     "find_hips_and_shoulders",
+    "finetune_sweep",
     "fit_normaliser",
     "fit_sinusoids",
     "fit_windows",
@@ -72,7 +82,9 @@ __all__ = [
     "global_positions",
     "global_transforms",
     "joint_contacts",
+    "load_adapter",
     "local_phases",
+    "metrics",
     "mirror",
     "mirror_pairs",
     "mocap_dir",
@@ -84,10 +96,15 @@ __all__ = [
     "read_phase_labels",
     "resample",
     "rest_positions",
+    "rollout",
     "root_trajectory",
     "rotate",
     "scale",
+    "selection",
     "set_up_axis",
     "skeleton_height",
+    "sweep_batches",
+    "turning_path",
     "write_bvh",
+    "write_report",
 ]

@@ -1,0 +1,138 @@
+"""Few-shot model selection: hold-out, the selection rule, lifelong styles, the report."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxstyle import datasets, fewshot, pfnn, selection
+from jaxstyle.datasets import ClipSpec
+from tests.test_fewshot import SMALL, _data
+
+
+def test_choose_rates_rule():
+    val = np.array([[0.5, 0.4, 0.6],    # best rate fails the check -> next best passing
+                    [0.3, 0.2, 0.1],    # best passes
+                    [0.3, 0.2, 0.4],    # none passes -> best overall, flagged
+                    [np.nan, 0.9, 0.8]])
+    passed = np.array([[1, 0, 1], [1, 1, 1], [0, 0, 0], [1, 1, 0]], bool)
+    chosen, ok = selection.choose_rates(val, passed)
+    np.testing.assert_array_equal(chosen, [0, 2, 1, 1])
+    np.testing.assert_array_equal(ok, [True, True, False, True])
+
+
+def test_adding_a_style_leaves_the_others_unchanged():
+    """The lifelong property: a new few-shot style (appended) gets its own adapter, keys and
+    batches; every earlier style's adapter, and so its outputs, stay the same."""
+    x, y, phase, rows = _data()
+    config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.4))
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
+    two = [rows[1], rows[2]]
+    three = two + [rows[0]]  # the new style is the longest: more (masked) steps for the others
+    b2, m2 = fewshot.sweep_batches(two, config.epochs, config.batch_size)
+    b3, m3 = fewshot.sweep_batches(three, config.epochs, config.batch_size)
+    assert b3.shape[1] > b2.shape[1]
+    before, _ = fewshot.finetune_sweep(params, x, y, phase, b2, m2, config)
+    after, _ = fewshot.finetune_sweep(params, x, y, phase, b3, m3, config)
+    for s in range(2):
+        for r in range(2):
+            a, b = (jax.tree.map(lambda v, s=s, r=r: v[s, r], t) for t in (before, after))
+            out_a = pfnn.pfnn_apply(params, x, phase, adapter=a)
+            out_b = pfnn.pfnn_apply(params, x, phase, adapter=b)
+            np.testing.assert_allclose(np.asarray(out_b), np.asarray(out_a), rtol=1e-5, atol=1e-6)
+
+
+def test_chunked_sweep_equals_one_call():
+    x, y, phase, rows = _data(3)
+    config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.2, 0.5))
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
+    b, m = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    whole, lw = fewshot.finetune_sweep(params, x, y, phase, b, m, config)
+    chunked, lc = fewshot.finetune_sweep(params, x, y, phase, b, m, config, chunk_steps=5)  # 12 steps: 5 + 5 + 2
+    for p, q in zip(jax.tree.leaves(whole), jax.tree.leaves(chunked), strict=True):
+        np.testing.assert_allclose(np.asarray(q), np.asarray(p), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(lc), np.asarray(lw), rtol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def fewshot_set(mocap):
+    """Two 100STYLE sets of 4 s (+ the trajectory window) each, with mirrors."""
+    root = mocap / "100style"
+    specs = []
+    for name, path, start in (("Elated", "Elated/Elated_FW.bvh", 482), ("Rushed", "Rushed/Rushed_FW.bvh", 343)):
+        specs += [ClipSpec(str(root / path), name, start, start + 240 + 111, mirror) for mirror in (False, True)]
+    return datasets.build_pfnn_dataset(specs), specs
+
+
+def test_holdout_keeps_the_last_cycle_of_each_clip(fewshot_set):
+    dataset, _ = fewshot_set
+    train, val = selection.holdout_rows(dataset, "Elated", gap_seconds=0.25)
+    phase = dataset.phases[:, 0]
+    for clip in np.unique(dataset.clip[dataset.rows_of_style("Elated")]):
+        t = train[dataset.clip[train] == clip]
+        v = val[dataset.clip[val] == clip]
+        assert dataset.frame[t].max() + 15 < dataset.frame[v].min()  # the gap
+        progress = np.sum(np.mod(np.diff(phase[v]), 1.0))
+        assert 0.9 < progress < 1.0  # one cycle, less one frame's step
+        assert len(v) < 0.34 * (len(v) + len(t) + 15) + 1
+    # mirrored twins hold out the same frames
+    f = [np.sort(dataset.frame[val[dataset.clip[val] == c]]) for c in (0, 1)]
+    np.testing.assert_array_equal(f[0], f[1])
+    with pytest.raises(ValueError, match="too few"):
+        selection.holdout_rows(dataset, "Elated", gap_seconds=10.0)
+
+
+def test_fewshot_sweep_end_to_end_writes_a_report(fewshot_set, tmp_path):
+    """An untrained base, 2 epochs: checks the plumbing (shapes, files, round trips), not quality."""
+    dataset, specs = fewshot_set
+    skeleton = datasets.load_clip(specs[0], fps=60.0)
+    model = pfnn.PFNNConfig(input_size=dataset.inputs.shape[1], hidden_size=64, output_size=dataset.outputs.shape[1],
+                            rank=8)
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), model)
+    config = fewshot.SweepConfig(model=model, epochs=2, rates=(0.3, 0.7))
+    result = selection.fewshot_sweep(params, dataset.normalisers(), dataset, skeleton, config,
+                                     check=selection.RolloutCheck(seconds=1.0), progress=False)
+    assert result.styles == ("Elated", "Rushed")
+    assert result.validation_loss.shape == (2, 2) and np.isfinite(result.validation_loss).all()
+    for k in selection.ROLLOUT_FIELDS:
+        assert result.rollout[k].shape == (2, 2)
+    # the validation loss is the MSE of the held-out rows, recomputed here without vmap
+    data = selection.fewshot_data(dataset, dataset.normalisers())
+    rows = data.val_rows[1]
+    a = result.adapter("Rushed", 1)
+    want = jnp.mean((pfnn.pfnn_apply(params, data.x[rows], data.phase[rows], adapter=a) - data.y[rows]) ** 2)
+    np.testing.assert_allclose(result.validation_loss[1, 1], float(want), rtol=1e-5)
+
+    paths = selection.write_report(result, tmp_path, config)
+    with open(paths["csv"], newline="") as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == 4 and sum(int(r["chosen"]) for r in table) == 2
+    chosen = json.loads(paths["chosen"].read_text())
+    assert set(chosen) == {"Elated", "Rushed"}
+    assert chosen["Rushed"]["rate"] == result.chosen_rate("Rushed")
+    assert paths["heatmap"].stat().st_size > 1000
+    loaded = selection.load_adapter(paths["adapters"] / "Rushed", model)
+    for p, q in zip(jax.tree.leaves(loaded), jax.tree.leaves(result.adapter("Rushed")), strict=True):
+        np.testing.assert_array_equal(np.asarray(p), np.asarray(q))
+
+
+def test_each_check_criterion_can_fail_a_pair():
+    check = selection.RolloutCheck()
+    good = {"finite": 1.0, "bone_error": 0.03, "contact_fraction": 0.95, "skating_m_s": 0.3, "progress": 1.0}
+    ref = {"contact_fraction": np.array([1.0]), "skating_m_s": np.array([0.1]), "speed_m_s": np.array([1.2]),
+           "base_skating_m_s": np.array([0.3]), "base_bone_error": np.array([0.03])}
+    bad = [("finite", 0.0), ("bone_error", 0.2), ("contact_fraction", 0.3), ("skating_m_s", 0.6),
+           ("progress", 0.3), ("progress", 2.5)]
+    out = {k: np.array([[v] * (len(bad) + 1)]) for k, v in good.items()}
+    for r, (k, v) in enumerate(bad, start=1):
+        out[k][0, r] = v
+    passed = selection.passes_check(out, ref, check)
+    np.testing.assert_array_equal(passed[0], [True] + [False] * len(bad))
+    # a style that stands still is not held to the distance
+    still = dict(ref, speed_m_s=np.array([0.0]))
+    assert selection.passes_check({k: v[:, [0, 5]] for k, v in out.items()}, still, check).all()
