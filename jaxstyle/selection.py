@@ -40,6 +40,7 @@ import json
 import os
 import shutil
 import time
+import warnings
 from pathlib import Path
 from typing import Sequence
 
@@ -61,7 +62,12 @@ def holdout_rows(dataset: Dataset, style: str, *, cycles: float = 1.0, gap_secon
                  max_fraction: float = 0.34, fps: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
     """``(train, validation)`` row indices of ``style``: per clip, the rows of its last ``cycles``
     locomotion cycles (measured by the phase, at most ``max_fraction`` of the clip's rows) are
-    validation, the ``gap_seconds`` before them are dropped, the rest is training."""
+    validation, the ``gap_seconds`` before them are dropped, the rest is training.
+
+    Warns when a clip's last ``cycles`` span more than ``max_fraction`` of its rows, so that only
+    that fraction is held out: the clip's phase then advances too slowly for its motion, which
+    usually means footsteps were missed (e.g. a fast gait at a low frame rate) and validation does
+    not cover a whole cycle."""
     rows = dataset.rows_of_style(style)
     phase = dataset.phases[:, 0]
     train, val = [], []
@@ -72,6 +78,11 @@ def holdout_rows(dataset: Dataset, style: str, *, cycles: float = 1.0, gap_secon
         step = np.mod(np.diff(phase[r]), 1.0)
         from_end = np.concatenate([np.cumsum(step[::-1])[::-1], [0.0]])  # phase still to go after each row
         n_val = int(np.count_nonzero(from_end < cycles))
+        if n_val > int(max_fraction * len(r)):
+            warnings.warn(f"style {style!r}: the last {cycles:g} cycle(s) of {dataset.specs[clip].path} span "
+                          f"{n_val} of its {len(r)} rows (the phase advances {from_end[0]:.1f} cycles in all); "
+                          f"holding out {int(max_fraction * len(r))} rows ({max_fraction:.0%}) instead. Check the "
+                          f"clip's phase labels (missed footsteps?)", stacklevel=2)
         n_val = max(1, min(n_val, int(max_fraction * len(r))))
         if len(r) - n_val - gap < 1:
             raise ValueError(f"style {style!r}: clip {dataset.specs[clip].path} has {len(r)} rows, too few to hold "

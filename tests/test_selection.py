@@ -85,6 +85,10 @@ def test_holdout_keeps_the_last_cycle_of_each_clip(fewshot_set):
     np.testing.assert_array_equal(f[0], f[1])
     with pytest.raises(ValueError, match="too few"):
         selection.holdout_rows(dataset, "Elated", gap_seconds=10.0)
+    # a cycle longer than the cap is capped, with a warning naming the style and the file
+    with pytest.warns(UserWarning, match=r"'Elated'.*Elated_FW\.bvh.*holding out"):
+        _, capped = selection.holdout_rows(dataset, "Elated", max_fraction=0.1)
+    assert len(capped) < 0.5 * len(val)
 
 
 def test_fewshot_sweep_end_to_end_writes_a_report(fewshot_set, tmp_path):
