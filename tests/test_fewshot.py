@@ -33,6 +33,17 @@ def test_sweep_batches_are_ragged_with_masks():
         assert np.isin(batches[s][mask[s]], rows[s]).all()
 
 
+def _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, s, r):
+    """The sweep's adapter of pair (s, r) equals :func:`finetune_one` with the same key and data
+    order (relative difference <= 1e-4); returns the single run's per-step losses."""
+    single, single_losses = fewshot.finetune_one(params, x, y, phase, batches[s], mask[s], config.rates[r],
+                                                 fewshot.pair_key(config.seed, s, r), config)
+    for got, want in zip(jax.tree.leaves(adapters), jax.tree.leaves(single), strict=True):
+        scale = np.abs(np.asarray(want)).max() + 1e-12
+        assert np.abs(np.asarray(got[s, r]) - np.asarray(want)).max() / scale <= 1e-4
+    return single_losses
+
+
 def test_vmapped_sweep_equals_single_runs():
     x, y, phase, rows = _data()
     config = fewshot.SweepConfig(model=SMALL, epochs=4, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.3, 0.6))
@@ -41,13 +52,8 @@ def test_vmapped_sweep_equals_single_runs():
     adapters, losses = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
     assert losses.shape == (3, 3, batches.shape[1])
     for s in range(3):
-        for r, rate in enumerate(config.rates):
-            single, single_losses = fewshot.finetune_one(params, x, y, phase, batches[s], mask[s], rate,
-                                                         fewshot.pair_key(config.seed, s, r), config)
-            for got, want in zip(jax.tree.leaves(adapters), jax.tree.leaves(single), strict=True):
-                got = np.asarray(got[s, r])
-                scale = np.abs(np.asarray(want)).max() + 1e-12
-                assert np.abs(got - np.asarray(want)).max() / scale <= 1e-4
+        for r in range(len(config.rates)):
+            single_losses = _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, s, r)
             np.testing.assert_allclose(losses[s, r], single_losses, rtol=1e-4, atol=1e-6)
     # masked (padding) steps change nothing and report NaN
     assert np.isnan(np.asarray(losses[2, 0, int(mask[2].sum()):])).all()
@@ -90,10 +96,7 @@ def test_adapter_dropout_only_mode_matches_its_definition():
 
     batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
     adapters, _ = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
-    single, _ = fewshot.finetune_one(params, x, y, phase, batches[1], mask[1], 0.5, fewshot.pair_key(0, 1, 1), config)
-    for got, want in zip(jax.tree.leaves(adapters), jax.tree.leaves(single), strict=True):
-        scale = np.abs(np.asarray(want)).max() + 1e-12
-        assert np.abs(np.asarray(got[1, 1]) - np.asarray(want)).max() / scale <= 1e-4
+    _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, 1, 1)
 
 
 def test_sharded_grid_matches_one_device():
@@ -152,9 +155,6 @@ def test_bfloat16_sweep_equals_its_single_runs():
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
     batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
     adapters, _ = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
-    single, _ = fewshot.finetune_one(params, x, y, phase, batches[2], mask[2], 0.5, fewshot.pair_key(0, 2, 1), config)
-    for got, want in zip(jax.tree.leaves(adapters), jax.tree.leaves(single), strict=True):
-        scale = np.abs(np.asarray(want)).max() + 1e-12
-        assert np.abs(np.asarray(got[2, 1]) - np.asarray(want)).max() / scale <= 1e-4
+    _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, 2, 1)
     with pytest.raises(ValueError, match="matmul_dtype"):
         fewshot.SweepConfig(matmul_dtype="float16")
