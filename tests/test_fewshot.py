@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -158,3 +160,18 @@ def test_bfloat16_sweep_equals_its_single_runs():
     _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, 2, 1)
     with pytest.raises(ValueError, match="matmul_dtype"):
         fewshot.SweepConfig(matmul_dtype="float16")
+
+
+@pytest.mark.parametrize("kind", ["full", "diagonal"])
+def test_sweep_with_full_and_diagonal_adapters_equals_single_runs(kind):
+    """CP is the default; the other two adapter kinds of the 2018 paper sweep the same way."""
+    model = dataclasses.replace(SMALL, adapter=kind)
+    x, y, phase, rows = _data(2)
+    config = fewshot.SweepConfig(model=model, epochs=2, batch_size=16, learning_rate=3e-3, rates=(0.2, 0.6))
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), model)
+    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    adapters, losses = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
+    assert pfnn.adapter_kind(jax.tree.map(lambda v: v[0, 0], adapters)) == kind
+    assert np.isfinite(np.asarray(losses[:, :, 0])).all()
+    for s, r in ((0, 1), (1, 0)):
+        _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, s, r)
