@@ -48,18 +48,27 @@ def _on_event(event: str, duration: float, **_) -> None:
 jax.monitoring.register_event_duration_secs_listener(_on_event)
 
 
-def sweep_flops(model: pfnn.PFNNConfig, rows_per_step: int, adapter_dropout_only: bool) -> float:
-    """Multiply-adds x 2 of one training step over ``rows_per_step`` rows (all pairs together).
+def frozen_flops_per_row(model: pfnn.PFNNConfig) -> float:
+    """Multiply-adds x 2 of the frozen layers 0 and 1 forward for one row (4 control points each)."""
+    i, h = model.input_size, model.hidden_size
+    return 2 * 4 * (i * h + h * h)
 
-    Per row: the frozen layers forward (4 control points each; skipped in the adapter-only mode,
-    whose cache is computed once and counted separately), the last layer forward and its input
-    gradient, and the CP adapter forward and backward (``10 H r``).
-    """
-    i, h, o, r = model.input_size, model.hidden_size, model.output_size, model.rank
-    per_row = 2 * 4 * h * o * 2 + 10 * h * r
+
+def matmul_flops(model: pfnn.PFNNConfig, rows: int, adapter_dropout_only: bool) -> float:
+    """Multiply-adds x 2 of one step's big products over ``rows`` rows: the last layer forward and
+    its input gradient, and (unless the adapter-only mode caches them) the frozen layers forward."""
+    per_row = 2 * 4 * model.hidden_size * model.output_size * 2
     if not adapter_dropout_only:
-        per_row += 2 * 4 * (i * h + h * h)
-    return float(per_row * rows_per_step)
+        per_row += frozen_flops_per_row(model)
+    return float(per_row * rows)
+
+
+def sweep_flops(model: pfnn.PFNNConfig, rows_per_step: int, adapter_dropout_only: bool) -> float:
+    """Multiply-adds x 2 of one training step over ``rows_per_step`` rows (all pairs together): the
+    big products (:func:`matmul_flops`; in the adapter-only mode the cache is computed once and
+    counted separately) and the CP adapter forward and backward (``10 H r``)."""
+    return matmul_flops(model, rows_per_step, adapter_dropout_only) + float(
+        10 * model.hidden_size * model.rank * rows_per_step)
 
 
 def timed(fn):
@@ -108,8 +117,7 @@ def matmul_reference(model: pfnn.PFNNConfig, rows: int, steps: int, adapter_drop
 
     timed(lambda: run_full(x, g))
     seconds = timed(lambda: run_full(x, g))
-    flops = 2 * rows * (h * 4 * o * 2 + (0 if adapter_dropout_only else i * 4 * h + h * 4 * h)) * steps
-    return seconds, float(flops)
+    return seconds, matmul_flops(model, rows, adapter_dropout_only) * steps
 
 
 def measure(mode: str, model, x, y, phase, rows, rates, epochs) -> dict:
@@ -138,7 +146,7 @@ def measure(mode: str, model, x, y, phase, rows, rates, epochs) -> dict:
     steps = batches.shape[1]
     flops = sweep_flops(model, pairs * config.batch_size, config.adapter_dropout_only) * steps
     if config.adapter_dropout_only:
-        flops += 2 * 4 * (model.input_size + model.hidden_size) * model.hidden_size * len(x)  # the cache, once
+        flops += frozen_flops_per_row(model) * len(x)  # the cache, once
     mm_s, mm_flops = matmul_reference(model, pairs * config.batch_size, steps, config.adapter_dropout_only,
                                       jnp.dtype(config.matmul_dtype))
     return {"mode": mode, "pairs": pairs, "steps": steps, "compile": compile_s, "sweep": sweep, "loop": loop_s,
