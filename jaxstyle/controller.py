@@ -112,8 +112,8 @@ def initial_state(x_row: np.ndarray, phase: float, num_joints: int) -> RolloutSt
     x = np.asarray(x_row, dtype=np.float64)
     if x.shape != (layout.input_size,):
         raise ValueError(f"x_row must have shape ({layout.input_size},) for {num_joints} joints, got {x.shape}")
-    n = PAST_SAMPLES + FUTURE_SAMPLES
-    tx, tz, dx, dz = x[0:n], x[n:2 * n], x[2 * n:3 * n], x[3 * n:4 * n]
+    g, n = layout.input_groups, PAST_SAMPLES + FUTURE_SAMPLES
+    (tx, tz), (dx, dz) = (np.split(x[g[k]], 2) for k in ("trajectory_position", "trajectory_direction"))
     yaw = np.unwrap(np.arctan2(dx, dz))
     yaw -= yaw[PAST_SAMPLES]  # the current sample faces +Z exactly
     sample_t = np.arange(-PAST_SAMPLES, 1) * SPACING
@@ -124,8 +124,7 @@ def initial_state(x_row: np.ndarray, phase: float, num_joints: int) -> RolloutSt
     hist_yaw = np.interp(frames, sample_t, yaw[:PAST_SAMPLES + 1])
     f = slice(PAST_SAMPLES, n)
     future = np.stack([tx[f], tz[f], dx[f], dz[f]])
-    j3 = 3 * num_joints
-    pos, vel = x[4 * n:4 * n + j3], x[4 * n + j3:4 * n + 2 * j3]
+    pos, vel = x[g["joint_position"]], x[g["joint_velocity"]]
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     return RolloutState(f32(hist_xz), f32(hist_yaw), f32(np.mod(phase, 1.0)), f32(pos), f32(vel), f32(future))
 
