@@ -120,25 +120,35 @@ def _pair_loss(params, adapter, x, y, phase, idx, key, rate, lambda_s, cache):
     return jnp.mean((pred - y[idx]) ** 2) + lambda_s * pfnn.l1_penalty(adapter)
 
 
-def _train_pair(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, keys_T, rate, *, learning_rate,
-                lambda_s, cache=None):
-    """Steps of one (style, rate) pair: ``lax.scan`` over ``batches_TxB`` with one PRNG key per
-    step; masked steps change nothing. With ``cache`` (:func:`frozen_activations`), the
-    adapter-path-only dropout mode. Returns the adapter, the optimiser state and per-step losses
-    (NaN on masked steps)."""
+def train_scan(loss_fn, trainable, opt_state, inputs_T, mask_T, keys_T, *, learning_rate: float):
+    """Adam steps as one ``lax.scan``: step ``t`` takes the gradient of
+    ``loss_fn(trainable, inputs_T[t], keys_T[t])`` with respect to ``trainable`` alone (whatever
+    else the loss uses is closed over, i.e. frozen); masked steps (``mask_T[t]`` false) change
+    nothing. Returns the trained tree, the optimiser state and per-step losses (NaN when masked).
+    The sweeps of this module and :mod:`jaxstyle.train_lpn` vmap this function over their grids."""
     optimiser = optax.adam(learning_rate)
 
     def step(carry, inputs):
         a, opt = carry
-        idx, real, k = inputs
-        value, grads = jax.value_and_grad(_pair_loss, argnums=1)(params, a, x, y, phase, idx, k, rate, lambda_s, cache)
+        step_inputs, real, k = inputs
+        value, grads = jax.value_and_grad(loss_fn)(a, step_inputs, k)
         updates, new_opt = optimiser.update(grads, opt)
         new_a = optax.apply_updates(a, updates)
         keep = lambda new, old: jnp.where(real, new, old)  # noqa: E731
         return (jax.tree.map(keep, new_a, a), jax.tree.map(keep, new_opt, opt)), jnp.where(real, value, jnp.nan)
 
-    (adapter, opt_state), losses = jax.lax.scan(step, (adapter, opt_state), (batches_TxB, mask_T, keys_T))
-    return adapter, opt_state, losses
+    (trainable, opt_state), losses = jax.lax.scan(step, (trainable, opt_state), (inputs_T, mask_T, keys_T))
+    return trainable, opt_state, losses
+
+
+def _train_pair(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, keys_T, rate, *, learning_rate,
+                lambda_s, cache=None):
+    """Steps of one (style, rate) pair: :func:`train_scan` over ``batches_TxB`` with one PRNG key
+    per step. With ``cache`` (:func:`frozen_activations`), the adapter-path-only dropout mode."""
+    def loss_fn(a, idx, k):
+        return _pair_loss(params, a, x, y, phase, idx, k, rate, lambda_s, cache)
+
+    return train_scan(loss_fn, adapter, opt_state, batches_TxB, mask_T, keys_T, learning_rate=learning_rate)
 
 
 def pair_key(seed: int, style: int, rate_index: int) -> jax.Array:

@@ -13,7 +13,6 @@ Data parallelism: with ``data_parallel=True`` the batch axis is sharded over all
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import time
 from pathlib import Path
@@ -25,7 +24,7 @@ import numpy as np
 import optax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxstyle import fewshot, pfnn
+from jaxstyle import fewshot, pfnn, runlog
 from jaxstyle.batching import balanced_batches
 from jaxstyle.checkpoint import Checkpointer
 
@@ -164,7 +163,7 @@ def train(data: TrainData, config: TrainConfig, directory: str | Path | None = N
         style_of_row[rows] = s
     log_path = Path(directory) / "log.csv" if directory else None
     if log_path is not None:
-        _truncate_log(log_path, start)
+        runlog.truncate_log(log_path, start)
     trainable, opt_state = (state["params"], state["adapters"]), state["opt_state"]
     done = 0
     for epoch in range(start, config.epochs):
@@ -178,7 +177,7 @@ def train(data: TrainData, config: TrainConfig, directory: str | Path | None = N
         batches_dev = _shard(batches, data_parallel)
         key = jax.random.fold_in(jax.random.PRNGKey(config.seed), epoch)
         losses = []
-        bar = _bar(len(batches), f"epoch {epoch + 1}/{config.epochs}", progress)
+        bar = runlog.progress_bar(len(batches), f"epoch {epoch + 1}/{config.epochs}", progress)
         for a in range(0, len(batches), config.log_every):
             b = min(a + config.log_every, len(batches))
             trainable, opt_state, chunk_losses = run_chunk(trainable, opt_state, x, y, phase, batches_dev[a:b],
@@ -203,36 +202,11 @@ def train(data: TrainData, config: TrainConfig, directory: str | Path | None = N
     return state
 
 
-def _bar(total: int, desc: str, progress: bool):
-    if not progress:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit="step", leave=False)
-
-
-def _truncate_log(path: Path, epoch: int) -> None:
-    """Keep the log rows of epochs up to ``epoch`` (those a resumed run has checkpoints for)."""
-    if not path.is_file():
-        return
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    keep = rows[:1] + [r for r in rows[1:] if int(r[0]) <= epoch]
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as f:
-        csv.writer(f).writerows(keep)
-    tmp.replace(path)
-
-
 def _append_log(path: Path, epoch: int, train_loss: float, val: np.ndarray, styles, seconds: float) -> None:
-    new = not path.is_file()
-    with open(path, "a", newline="") as f:
-        writer = csv.writer(f)
-        if new:
-            writer.writerow(["epoch", "train_loss", "val_loss_mean", "seconds"] + [f"val_{s}" for s in styles])
-        mean = float(np.mean(val[np.isfinite(val)])) if np.isfinite(val).any() else float("nan")
-        writer.writerow([epoch, f"{train_loss:.6f}", f"{mean:.6f}", f"{seconds:.2f}"]
-                        + [f"{v:.6f}" for v in val])
+    mean = float(np.mean(val[np.isfinite(val)])) if np.isfinite(val).any() else float("nan")
+    per_style = {f"val_{s}": f"{v:.6f}" for s, v in zip(styles, val, strict=True)}
+    runlog.append_log(path, {"epoch": epoch, "train_loss": f"{train_loss:.6f}", "val_loss_mean": f"{mean:.6f}",
+                             "seconds": f"{seconds:.2f}", **per_style})
 
 
 def finetune_adapter(params: dict, adapter: dict, data: TrainData, style: int, config: TrainConfig) -> dict:
