@@ -46,7 +46,7 @@ from jaxstyle.normalise import Normaliser, fit_normaliser
 from jaxstyle.pfnn_features import PFNNLayout, encode_pfnn, valid_frames
 from jaxstyle.phase import global_phase
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 GAITS_100STYLE = ("BR", "BW", "FR", "FW", "ID", "SR", "SW", "TR1", "TR2", "TR3")
 
 
@@ -155,7 +155,8 @@ class Dataset:
     """Rows of one layout, float32. ``inputs (N, Din)``, ``outputs (N, Dout)``, ``phases (N, P)`` (the
     global phase for the PFNN, the 8 local-phase values for the LPN); per row ``style`` (index
     into ``styles``), ``clip`` (index into ``specs``) and ``frame``; ``clips (C, 240, 300)`` with
-    ``clip_style (C,)`` for the LPN (empty for the PFNN); ``split (N,)`` 0/1/2 for train,
+    ``clip_style (C,)``, ``clip_source (C,)`` (index into ``specs``) and ``clip_start (C,)`` (first
+    frame) for the LPN (empty for the PFNN); ``split (N,)`` 0/1/2 for train,
     validation, test (-1 in a gap); and the input/output statistics of :meth:`normalisers`."""
 
     styles: tuple[str, ...]
@@ -168,6 +169,8 @@ class Dataset:
     frame: np.ndarray
     clips: np.ndarray
     clip_style: np.ndarray
+    clip_source: np.ndarray
+    clip_start: np.ndarray
     split: np.ndarray
     input_mean: np.ndarray
     input_std: np.ndarray
@@ -182,6 +185,24 @@ class Dataset:
         if split is not None:
             keep &= self.split == SPLITS.index(split)
         return np.flatnonzero(keep)
+
+    def clips_of_style(self, name: str, split: str | None = None) -> np.ndarray:
+        """Style-clip indices of a style; with ``split``, only clips whose frames all lie in rows of
+        that split (a clip overlapping validation or test rows is not a training clip)."""
+        if name not in self.styles:
+            raise KeyError(f"unknown style {name!r}; the dataset has {', '.join(self.styles)}")
+        found = np.flatnonzero(self.clip_style == self.styles.index(name))
+        if split is None:
+            return found
+        want = SPLITS.index(split)
+        frames = self.clips.shape[1]
+        keep = []
+        for c in found:
+            rows = (self.clip == self.clip_source[c]) & (self.frame >= self.clip_start[c]) & (
+                self.frame < self.clip_start[c] + frames)
+            if rows.any() and (self.split[rows] == want).all():
+                keep.append(c)
+        return np.asarray(keep, dtype=np.int64)
 
     def mirror_rows(self) -> np.ndarray:
         """``(N,)`` the row of each row's mirrored twin (same frame of the clip's mirrored copy),
@@ -272,8 +293,8 @@ def _split_seed(spec: ClipSpec, seed: int) -> int:
 
 def _assemble(specs, per_clip, layout_groups, with_clips: bool, split: SplitSettings) -> Dataset:
     styles = tuple(dict.fromkeys(s.style for s in specs))
-    xs, ys, ps, st, cl, fr, sp, clips, clip_style = [], [], [], [], [], [], [], [], []
-    for i, (spec, (x, y, p, t, c)) in enumerate(zip(specs, per_clip, strict=True)):
+    xs, ys, ps, st, cl, fr, sp, clips, clip_style, clip_source, clip_start = ([] for _ in range(11))
+    for i, (spec, (x, y, p, t, c, c_start)) in enumerate(zip(specs, per_clip, strict=True)):
         xs.append(x), ys.append(y), ps.append(p), fr.append(t)
         st.append(np.full(len(t), styles.index(spec.style))), cl.append(np.full(len(t), i))
         blocks = contiguous_split(len(t), split.fractions, gap=split.gap, seed=_split_seed(spec, split.seed))
@@ -283,16 +304,21 @@ def _assemble(specs, per_clip, layout_groups, with_clips: bool, split: SplitSett
         sp.append(rows)
         if with_clips:
             clips.append(c), clip_style.append(np.full(len(c), styles.index(spec.style)))
+            clip_source.append(np.full(len(c), i)), clip_start.append(c_start)
     x, y, splits = np.concatenate(xs), np.concatenate(ys), np.concatenate(sp)
     in_groups, out_groups = layout_groups(x.shape[1])
     train = splits == 0
     x_norm, y_norm = fit_normaliser([x[train]], in_groups), fit_normaliser([y[train]], out_groups)
     empty = np.zeros((0, 240, x.shape[1] - 48 if with_clips else 0))
     f32 = np.float32  # training precision; halves the cache
+
+    def ints(parts):
+        return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
+
     return Dataset(styles, tuple(specs), x.astype(f32), y.astype(f32), np.concatenate(ps).astype(f32),
                    np.concatenate(st), np.concatenate(cl), np.concatenate(fr),
                    (np.concatenate(clips) if clips else empty).astype(f32),
-                   np.concatenate(clip_style) if clip_style else np.zeros(0, int), splits,
+                   ints(clip_style), ints(clip_source), ints(clip_start), splits,
                    x_norm.mean, x_norm.std, y_norm.mean, y_norm.std)
 
 
@@ -370,7 +396,7 @@ def build_pfnn_dataset(specs: Sequence[ClipSpec], *, fps: float = 60.0, cache_di
         else:
             phase = global_phase(motion)
         x, y, t = encode_pfnn(motion, phase)
-        return x, y, phase[t][:, None], t, None
+        return x, y, phase[t][:, None], t, None, None
 
     def build():
         kept, per_clip = _encode_all(specs, fps, skip_short, progress, "PFNN features", encode)
@@ -390,7 +416,7 @@ def build_lpn_dataset(specs: Sequence[ClipSpec], *, cache_dir: str | os.PathLike
 
     def encode(spec, motion, source_fps):
         f = encode_lpn(motion)
-        return f.inputs, f.outputs, f.phases, f.frames, f.clips
+        return f.inputs, f.outputs, f.phases, f.frames, f.clips, f.clip_starts
 
     def build():
         kept, per_clip = _encode_all(specs, None, skip_short, progress, "LPN features", encode)
