@@ -106,6 +106,31 @@ def bone_points(motion: Motion) -> tuple[np.ndarray, np.ndarray, list[str]]:
     return point_idx.astype(int), rot_idx.astype(int), names
 
 
+def bone_parents(motion: Motion) -> np.ndarray:
+    """``(B,)`` parent of each LPN bone in the bone order of :func:`bone_points` (-1 for the root;
+    a hand end site's parent is its wrist): the bones of the 2022 bone-length loss (Eq. 6)."""
+    points, rot_idx, _ = bone_points(motion)
+    parents = np.asarray(motion.parents)
+    out = np.full(len(points), -1, dtype=np.int64)
+    for i, (p, r) in enumerate(zip(points, rot_idx, strict=True)):
+        if p < motion.num_joints:
+            out[i] = parents[p]  # joint indices are the first num_joints bones, in order
+        else:
+            out[i] = r  # an end site hangs from the joint whose rotation it takes
+    return out
+
+
+def end_effector_columns(motion: Motion) -> np.ndarray:
+    """``(12,)`` input columns of the velocities of the hands and feet (the local-phase bones:
+    right hand, left hand, right foot, left foot): the MANN backbone's gating input (Zhang et al.
+    2018, via the 2022 paper's MANN FiLM)."""
+    from jaxstyle.local_phase import default_bones
+
+    names = bone_points(motion)[2]
+    vel = LPNLayout(len(names)).input_groups["joint_velocity"].start
+    return np.concatenate([vel + 3 * names.index(n) + np.arange(3) for n in default_bones(motion)])
+
+
 def _joint_features(pos, prev, rot, frames: CharacterFrames, index) -> np.ndarray:
     n = len(pos)
     local_rot = rotations_to_local(rot, frames, index)
