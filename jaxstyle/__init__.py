@@ -4,7 +4,7 @@ Reimplements Mason et al. 2018 (few-shot PFNN residual adapters) and Mason, Star
 (local motion phases with FiLM). This module re-exports the public API.
 """
 
-from jaxstyle import controller, fewshot, metrics, pfnn, quat, selection
+from jaxstyle import controller, fewshot, film, lpn, metrics, pfnn, quat, selection, style_models, train_lpn
 from jaxstyle.batching import balanced_batches, contiguous_split
 from jaxstyle.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
 from jaxstyle.character_frame import CharacterFrames, character_frames
@@ -13,6 +13,7 @@ from jaxstyle.controller import rollout, turning_path
 from jaxstyle.data import default_mocap_dir, mocap_dir, read_phase_labels
 from jaxstyle.errors import JaxstyleError, MotionDataError
 from jaxstyle.fewshot import SweepConfig, finetune_sweep, sweep_batches
+from jaxstyle.film import FiLMConfig
 from jaxstyle.kinematics import (
     bone_lengths,
     facing_directions,
@@ -33,17 +34,22 @@ from jaxstyle.phase import circular_distance, footsteps, global_phase
 from jaxstyle.selection import RolloutCheck, SweepResult, fewshot_sweep, load_adapter, write_report
 from jaxstyle.sinusoid import SinusoidFit, fit_sinusoids, fit_windows
 from jaxstyle.skeleton import find_feet_and_hands, find_hips_and_shoulders, mirror_pairs
+from jaxstyle.style_models import StyleModelConfig
+from jaxstyle.train_lpn import FiLMFinetuneConfig, LPNTrainConfig
 from jaxstyle.transform import mirror, resample, rotate, scale, set_up_axis
 
 __version__ = "0.1.0"
 
 __all__ = [
     "CharacterFrames",
+    "FiLMConfig",
+    "FiLMFinetuneConfig",
     "FootContacts",
     "FootJoints",
     "JaxstyleError",
     "LPNFeatures",
     "LPNLayout",
+    "LPNTrainConfig",
     "LocalPhases",
     "Motion",
     "MotionDataError",
@@ -51,6 +57,7 @@ __all__ = [
     "PFNNLayout",
     "RolloutCheck",
     "SinusoidFit",
+    "StyleModelConfig",
     "SweepConfig",
     "SweepResult",
     "balanced_batches",
@@ -68,6 +75,7 @@ __all__ = [
     "facing_directions",
     "fewshot",
     "fewshot_sweep",
+    "film",
     "find_feet_and_hands",
     "find_hips_and_shoulders",
     "finetune_sweep",
@@ -84,6 +92,7 @@ __all__ = [
     "joint_contacts",
     "load_adapter",
     "local_phases",
+    "lpn",
     "metrics",
     "mirror",
     "mirror_pairs",
@@ -103,7 +112,9 @@ __all__ = [
     "selection",
     "set_up_axis",
     "skeleton_height",
+    "style_models",
     "sweep_batches",
+    "train_lpn",
     "turning_path",
     "write_bvh",
     "write_report",

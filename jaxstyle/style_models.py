@@ -165,6 +165,22 @@ def model_apply(params: dict, config: StyleModelConfig, x_BxI: jax.Array, gate_B
                                dropout_rate=dropout_rate, **kwargs)
 
 
+def runtime_forward(params: dict, config: StyleModelConfig):
+    """The runtime's network call: a jitted ``f(x_BxI, gate_BxG, style) -> z_BxO`` with dropout
+    off and the style precomputed (a FiLM vector, a one-hot table row or one style's adapter);
+    batch 1 is one character's frame."""
+    return jax.jit(lambda x, g, s: model_apply(params, config, x, g, s))
+
+
+def example_style(params: dict, config: StyleModelConfig, style: int = 0):
+    """A style input for :func:`runtime_forward`: style ``style``'s runtime parameters, or for a
+    FiLM model the FiLM vector of an all-zero clip (for timing and shape checks)."""
+    if config.modulation == "film":
+        g = config.generator
+        return film.generator_apply(params["style"]["generator"], jnp.zeros((1, g.clip_frames, g.clip_features)))[0]
+    return style_runtime(params, config, style)
+
+
 # --- Table 2 parameter counts -------------------------------------------------------------------
 
 def synthesis_size(config: StyleModelConfig) -> int:

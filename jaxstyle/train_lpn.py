@@ -126,7 +126,8 @@ def style_data(dataset, skeleton: Motion, *, backbone: str = "lpn", styles: Sequ
 
 # --- loss ---------------------------------------------------------------------------------------
 
-def _positions(y_BxO, bones: BonePositions):
+def positions_m(y_BxO, bones: BonePositions):
+    """``(B, J, 3)`` joint positions in metres from normalised outputs."""
     n = len(bones.parents)
     p = y_BxO[:, bones.start:bones.start + 3 * n] * bones.scale + bones.offset
     return p.reshape(len(y_BxO), n, 3)
@@ -135,7 +136,7 @@ def _positions(y_BxO, bones: BonePositions):
 def losses(pred_BxO, y_BxO, bones: BonePositions) -> tuple[jax.Array, jax.Array]:
     """``(mse, bll)``: Eq. 5 and Eq. 7 for one batch (bone lengths in metres)."""
     mse = jnp.mean(jnp.square(pred_BxO - y_BxO))
-    bll = lpn.bone_length_loss(_positions(pred_BxO, bones), _positions(y_BxO, bones), bones.parents)
+    bll = lpn.bone_length_loss(positions_m(pred_BxO, bones), positions_m(y_BxO, bones), bones.parents)
     return mse, bll
 
 
@@ -292,7 +293,7 @@ def _eval_chunk(params, x, y, gate, style, *, config, bones):
     pred = style_models.model_apply(params, config, x, gate, style)
     n = len(x)
     mse = jnp.sum(jnp.mean(jnp.square(pred - y), axis=1))
-    bll = lpn.bone_length_loss(_positions(pred, _bones(bones)), _positions(y, _bones(bones)), _bones(bones).parents)
+    bll = lpn.bone_length_loss(positions_m(pred, _bones(bones)), positions_m(y, _bones(bones)), _bones(bones).parents)
     return mse, bll * n
 
 

@@ -63,3 +63,46 @@ def plot_local_phases(result: LocalPhases, start: int = 0, stop: int | None = No
         fig.suptitle(title, color="white")
     fig.tight_layout()
     return fig
+
+
+def pca_2d(points_NxD: np.ndarray) -> np.ndarray:
+    """``(N, 2)`` projection of points on their first two principal components."""
+    x = np.asarray(points_NxD, dtype=np.float64)
+    x = x - x.mean(axis=0)
+    _, _, vt = np.linalg.svd(x, full_matrices=False)
+    return x @ vt[:2].T
+
+
+def plot_film_projection(panels: dict[str, dict[str, np.ndarray]], new_styles=(), *, title: str = ""):
+    """The 2022 paper's Figure 11 with PCA instead of t-SNE: one panel per entry of ``panels``
+    (e.g. ``{"before fine-tuning": {style: (n, 2048) FiLM parameters}, "after ...": ...}``), each
+    projected on its own first two principal components; ``new_styles`` (held out of training) are
+    drawn as large dark markers, training styles as small pastel dots. Returns the ``Figure``."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 5), squeeze=False)
+    markers = ["o", "s", "^", "D", "v"]
+    for ax, (name, per_style) in zip(axes[0], panels.items(), strict=True):
+        styles = list(per_style)
+        xy = pca_2d(np.concatenate([per_style[s] for s in styles]))
+        start, k = 0, 0
+        for i, s in enumerate(styles):
+            n = len(per_style[s])
+            pts = xy[start:start + n]
+            start += n
+            if s in new_styles:
+                ax.scatter(pts[:, 0], pts[:, 1], s=40, marker=markers[k % len(markers)], color="black",
+                           edgecolor="white", label=f"{s} (new)", zorder=3)
+                k += 1
+            else:
+                ax.scatter(pts[:, 0], pts[:, 1], s=12, alpha=0.6, color=plt.cm.Pastel1(i % 9), label=s)
+        ax.set_title(name)
+        ax.set_xticks([]), ax.set_yticks([])
+        ax.legend(fontsize=7, loc="best")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig

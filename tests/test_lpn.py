@@ -10,6 +10,7 @@ import optax
 import pytest
 from jax.test_util import check_grads
 
+import jaxstyle as js
 from jaxstyle import film, lpn, style_models, train_lpn
 from jaxstyle.style_models import StyleModelConfig
 
@@ -330,3 +331,71 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a[1, 1], b, rtol=1e-4, atol=1e-6), gens, one)
     changed = jax.tree.map(lambda a, b: float(jnp.abs(a[0, 0] - b).max()), gens, gen0)
     assert max(jax.tree.leaves(changed)) > 1e-4
+
+
+# --- on real 100STYLE clips ---------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def real_data(mocap, tmp_path_factory):
+    from jaxstyle import datasets
+
+    specs = [s for s in datasets.specs_100style(mocap / "100style", styles=["Neutral", "Rushed"]) if s.gait == "FW"]
+    ds = datasets.build_lpn_dataset(specs, cache_dir=tmp_path_factory.mktemp("cache"))
+    skeleton = js.read_bvh(specs[0].path)
+    return ds, skeleton
+
+
+def test_style_data_positions_are_the_skeletons_bones_in_metres(real_data):
+    from jaxstyle.kinematics import bone_lengths
+
+    ds, skeleton = real_data
+    data = train_lpn.style_data(ds, skeleton)
+    pos = np.asarray(train_lpn.positions_m(jnp.asarray(data.y[:500]), data.bones))
+    parents = np.asarray(data.bones.parents)
+    joints = np.flatnonzero(parents[:skeleton.num_joints] >= 0)
+    lengths = np.linalg.norm(pos[:, joints] - pos[:, parents[joints]], axis=-1)
+    np.testing.assert_allclose(lengths, np.broadcast_to(bone_lengths(skeleton)[joints] / 100.0, lengths.shape),
+                               atol=2e-3)  # float32 features; 100STYLE is in centimetres
+    assert float(lpn.bone_length_loss(pos, pos, data.bones.parents)) == 0.0
+    # MANN gating input: the 4 end effectors' velocities, taken from the normalised input
+    mann = train_lpn.style_data(ds, skeleton, backbone="mann")
+    assert mann.gate.shape == (len(ds.inputs), 12)
+    with pytest.raises(ValueError, match="global phase"):
+        train_lpn.style_data(ds, skeleton, backbone="pfnn")
+
+
+def test_training_clips_lie_in_training_rows(real_data):
+    ds, _ = real_data
+    for style in ds.styles:
+        train_clips = ds.clips_of_style(style, "train")
+        assert 0 < len(train_clips) < len(ds.clips_of_style(style))
+        for c in ds.clips_of_style(style):
+            rows = (ds.clip == ds.clip_source[c]) & (ds.frame >= ds.clip_start[c]) & (ds.frame < ds.clip_start[c] + 240)
+            assert ((ds.split[rows] == 0).all() and rows.any()) == (c in train_clips)
+    with pytest.raises(KeyError, match="unknown style"):
+        ds.clips_of_style("Zombie")
+
+
+def test_a_small_model_trains_on_real_clips(real_data):
+    ds, skeleton = real_data
+    data = train_lpn.style_data(ds, skeleton)
+    mc = StyleModelConfig(num_styles=2, hidden_size=16, num_experts=2, gating_hidden=8,
+                          generator=film.FiLMConfig(filters=4, width=5, hidden=16, film_size=64))
+    config = train_lpn.LPNTrainConfig(model=mc, epochs=1, learning_rate=1e-3, log_every=40)
+    before = train_lpn.evaluate(train_lpn.init_state(jax.random.PRNGKey(0), config)["params"], mc, data, "validation")
+    state = train_lpn.train(data, config, progress=False)
+    after = train_lpn.evaluate(state["params"], mc, data, "validation")
+    assert np.isfinite(after["mse"]).all() and np.mean(after["mse"]) < np.mean(before["mse"])
+
+
+def test_table2_script_prints_the_paper_counts():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "experiments" / "mason2022_table2.py"
+    out = subprocess.run([sys.executable, str(script), "--no-runtime"], capture_output=True, text=True, check=True,
+                         timeout=300).stdout
+    assert "| LPN FiLM | 4,935,928 | 4,935,928 | 39,214,592 | 35,668,530 | 2,048 | 2,048 |" in out
+    assert "| PFNN Resad | 2,436,380 | 2,436,380 | 2,978,440 | 2,978,440 | 31,352 | 31,352 |" in out
+    assert "LPN Resad S.M.N." not in out  # only the FiLM generator's count differs
