@@ -111,7 +111,7 @@ def main() -> None:
     new_data = train_lpn.style_data(new, skeleton, base=base)
     ft = train_lpn.FiLMFinetuneConfig(rates=config.rates, max_steps=config.finetune_steps, epochs=100)
     t0 = time.perf_counter()
-    gens, per_step = train_lpn.finetune_film_sweep(params, mc, new_data, ft)
+    gens, per_step = train_lpn.finetune_film_sweep(params, mc, new_data, ft, chunk_steps=10, progress=True)
     seconds = time.perf_counter() - t0
     say(f"\nfine-tuning the FiLM generator: {len(new.styles)} styles x {len(ft.rates)} rates, "
         f"{per_step.shape[2]} steps each, one compiled sweep: {seconds:.0f} s\n")

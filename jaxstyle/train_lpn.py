@@ -354,44 +354,67 @@ def finetune_batches(data: StyleData, config: FiLMFinetuneConfig) -> tuple[np.nd
     return batches, clips, mask
 
 
-@functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate"))
-def _film_grid(frozen, generator, arrays, batches_SxTxB, clips_SxT, mask_SxT, keys_SxRxT, rates_R, weight, *,
-               config, bones, learning_rate):
-    opt_state = optax.adam(learning_rate).init(generator)
-
-    def pair(keys_T, rate, batches, clips, mask):
-        def loss_fn(gen, inputs, key):
+@functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate"), donate_argnums=(1, 2))
+def _film_grid(frozen, generators_SxR, opt_SxR, arrays, batches_SxTxB, clips_SxT, mask_SxT, keys_SxRxT, rates_R,
+               weight, *, config, bones, learning_rate):
+    """One chunk of steps of every (style, rate) pair: vmap over styles of vmap over rates of
+    :func:`jaxstyle.fewshot.train_scan`; the frozen network is closed over (broadcast)."""
+    def pair(gen, opt, keys_T, rate, batches, clips, mask):
+        def loss_fn(g, inputs, key):
             idx, clip = inputs
-            params = {**frozen, "style": {"generator": gen}}
+            params = {**frozen, "style": {"generator": g}}
             return batch_loss(params, config, arrays, idx, 0, clip, key, rate, _bones(bones), weight)[0]
 
-        gen, _, per_step = fewshot.train_scan(loss_fn, generator, opt_state, (batches, clips), mask, keys_T,
-                                              learning_rate=learning_rate)
-        return gen, per_step
+        return fewshot.train_scan(loss_fn, gen, opt, (batches, clips), mask, keys_T, learning_rate=learning_rate)
 
-    over_rates = jax.vmap(pair, in_axes=(0, 0, None, None, None))
-    return jax.vmap(over_rates, in_axes=(0, None, 0, 0, 0))(keys_SxRxT, rates_R, batches_SxTxB, clips_SxT, mask_SxT)
+    over_rates = jax.vmap(pair, in_axes=(0, 0, 0, 0, None, None, None))
+    over_styles = jax.vmap(over_rates, in_axes=(0, 0, 0, None, 0, 0, 0))
+    return over_styles(generators_SxR, opt_SxR, keys_SxRxT, rates_R, batches_SxTxB, clips_SxT, mask_SxT)
 
 
 def finetune_film_sweep(params: dict, config: StyleModelConfig, data: StyleData,
-                        finetune: FiLMFinetuneConfig = FiLMFinetuneConfig()) -> tuple[dict, np.ndarray]:
+                        finetune: FiLMFinetuneConfig = FiLMFinetuneConfig(), *, chunk_steps: int | None = None,
+                        progress: bool = False) -> tuple[dict, np.ndarray]:
     """Fine-tune the FiLM generator on every style of ``data`` (new styles, normalised with the
     base statistics) at every rate of ``finetune.rates``, the synthesis network and gating frozen
     (closed over, broadcast to all pairs; gradients for the generator only). Returns generators
     stacked ``(S, R, ...)`` and per-step losses ``(S, R, T)`` (NaN on padded steps). Keys depend
-    only on the seed, the style's index and the rate's index, as in the 2018 sweep."""
+    only on the seed, the style's index and the rate's index, as in the 2018 sweep.
+
+    ``chunk_steps`` runs the steps in chunks (one compiled program, called once per chunk, the
+    last chunk padded with masked steps) so ``progress=True`` can move a bar; same result."""
     if config.modulation != "film":
         raise ValueError(f"fine-tuning the FiLM generator needs a FiLM model, got {config.modulation!r}")
     batches, clips, mask = finetune_batches(data, finetune)
     num_styles, num_rates, steps = batches.shape[0], len(finetune.rates), batches.shape[1]
+    chunk = steps if chunk_steps is None else max(1, min(int(chunk_steps), steps))
+    total = -(-steps // chunk) * chunk
+    pad = ((0, 0), (0, total - steps))
+    batches = np.pad(batches, pad + ((0, 0),))
+    clips, mask = np.pad(clips, pad), np.pad(mask, pad)
     keys = jnp.stack([jnp.stack([jax.random.split(fewshot.pair_key(finetune.seed, s, r), steps)
                                  for r in range(num_rates)]) for s in range(num_styles)])
+    keys = jnp.pad(keys, ((0, 0), (0, 0), (0, total - steps), (0, 0)))
     frozen = {k: v for k, v in params.items() if k != "style"}
-    gens, per_step = _film_grid(frozen, params["style"]["generator"], _device_arrays(data), jnp.asarray(batches),
-                                jnp.asarray(clips), jnp.asarray(mask), keys,
-                                jnp.asarray(finetune.rates, jnp.float32), jnp.float32(finetune.bone_loss_weight),
-                                config=config, bones=_Static(data.bones), learning_rate=finetune.learning_rate)
-    return gens, np.asarray(per_step)
+    gens = jax.tree.map(lambda v: jnp.broadcast_to(v, (num_styles, num_rates) + v.shape).copy(),
+                        params["style"]["generator"])
+    opt = jax.vmap(jax.vmap(optax.adam(finetune.learning_rate).init))(gens)
+    arrays, rates = _device_arrays(data), jnp.asarray(finetune.rates, jnp.float32)
+    bar = runlog.progress_bar(steps, f"FiLM fine-tuning {num_styles} styles x {num_rates} rates", progress)
+    per_step = []
+    for a in range(0, total, chunk):
+        b = a + chunk
+        gens, opt, out = _film_grid(frozen, gens, opt, arrays, jnp.asarray(batches[:, a:b]),
+                                    jnp.asarray(clips[:, a:b]), jnp.asarray(mask[:, a:b]), keys[:, :, a:b], rates,
+                                    jnp.float32(finetune.bone_loss_weight), config=config,
+                                    bones=_Static(data.bones), learning_rate=finetune.learning_rate)
+        per_step.append(np.asarray(out))
+        if bar is not None:
+            bar.update(min(b, steps) - a)
+            bar.set_postfix(loss=f"{float(np.nanmean(per_step[-1])):.4f}")
+    if bar is not None:
+        bar.close()
+    return gens, np.concatenate(per_step, axis=2)[:, :, :steps]
 
 
 def with_generator(params: dict, generators: dict, style: int, rate: int) -> dict:

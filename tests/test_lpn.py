@@ -217,7 +217,7 @@ def test_every_model_runs_and_its_gradients_pass_finite_differences(backbone, mo
 
     with jax.enable_x64(True):
         p64 = jax.tree.map(lambda v: jnp.asarray(v, jnp.float64), params)
-        check_grads(f, (p64,), order=1, modes=["rev"], eps=1e-4, atol=1e-4, rtol=1e-3)
+        check_grads(jax.jit(f), (p64,), order=1, modes=["rev"], eps=1e-4, atol=1e-4, rtol=1e-3)
 
 
 def test_one_hot_tables_interpolate_and_styles_differ():
@@ -310,7 +310,7 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
     config = small_config()
     params = style_models.init_model(KEY, config)
     ft = train_lpn.FiLMFinetuneConfig(epochs=2, batch_size=8, learning_rate=1e-3, rates=(0.0, 0.3))
-    gens, per_step = train_lpn.finetune_film_sweep(params, config, data, ft)
+    gens, per_step = train_lpn.finetune_film_sweep(params, config, data, ft, chunk_steps=5)  # 5+5+5+1 steps
     assert per_step.shape == (2, 2, 16) and np.isfinite(per_step).all()
     # style 1, rate index 1, run alone through the same scan: the sweep is a vmap of single runs
     batches, clips, mask = train_lpn.finetune_batches(data, ft)
