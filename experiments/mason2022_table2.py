@@ -87,7 +87,8 @@ def main() -> None:
         print(f"  The FiLM generator as described (conv {g.clip_features}->{g.filters} width {g.width}, maxpool 2, "
               f"conv {g.filters}->{g.filters} width {g.width}, maxpool 2, dense {g.pooled_frames}*{g.filters}->"
               f"{g.hidden}, dense {g.hidden}->{g.film_size}, with biases) has {film.generator_size(g):,} parameters; "
-              "no variant of padding, pooling, widths or biases gives the paper's 35,668,530 (see jaxstyle/film.py).")
+              "no variant searched (padding, pooling, widths, biases) gives the paper's 35,668,530 "
+              "(see jaxstyle/film.py).")
     unexplained = [m for m in mismatches if not (m[1] == "S.M.N." and TABLE2[m[0]][1] == "film")]
     if unexplained:
         raise SystemExit(f"unexpected parameter-count mismatches: {unexplained}")

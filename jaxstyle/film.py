@@ -9,8 +9,9 @@ At runtime the generator is not run: a style is one precomputed 2048-vector
 by blending these vectors with barycentric weights (:func:`interpolate`).
 
 Parameter count: :func:`generator_size` gives 39,214,592 for the paper's sizes; the paper's
-Table 2 lists 35,668,530 for the style modulation network. No combination of the described
-layers (padding, pooling, filter width, clip width, with or without biases) gives that number, so
+Table 2 lists 35,668,530 for the style modulation network. A search over 'same'/'valid'
+padding, pooling by 1 or 2, filter widths 3-50, 64-512 filters, clip widths 75-348, dense widths
+512-4096 and with or without biases found no combination giving that number, so
 jaxstyle builds the network as the text describes it (section 4.3 and the authors' code layout in
 ``IMPLEMENTATION_FACTS.md``) and reports both counts (``experiments/mason2022_table2.py``).
 """
