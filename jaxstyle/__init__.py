@@ -4,14 +4,31 @@ Reimplements Mason et al. 2018 (few-shot PFNN residual adapters) and Mason, Star
 (local motion phases with FiLM). This module re-exports the public API.
 """
 
-from jaxstyle import controller, fewshot, film, lpn, metrics, pfnn, quat, selection, style_models, train_lpn
+from jaxstyle import (
+    controller,
+    export,
+    fewshot,
+    film,
+    footik,
+    lpn,
+    lpn_controller,
+    metrics,
+    paths,
+    pfnn,
+    preview,
+    quat,
+    selection,
+    style_models,
+    train_lpn,
+)
 from jaxstyle.batching import balanced_batches, contiguous_split
 from jaxstyle.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
 from jaxstyle.character_frame import CharacterFrames, character_frames
 from jaxstyle.contacts import FootContacts, FootJoints, estimate_units_per_meter, foot_contacts, joint_contacts
-from jaxstyle.controller import rollout, turning_path
+from jaxstyle.controller import rollout, rollout_batch, turning_path
 from jaxstyle.data import default_mocap_dir, mocap_dir, read_phase_labels
 from jaxstyle.errors import JaxstyleError, MotionDataError
+from jaxstyle.export import rollout_motion, save_rollout
 from jaxstyle.fewshot import SweepConfig, finetune_sweep, sweep_batches
 from jaxstyle.film import FiLMConfig
 from jaxstyle.kinematics import (
@@ -27,8 +44,10 @@ from jaxstyle.kinematics import (
 )
 from jaxstyle.local_phase import LocalPhases, local_phases
 from jaxstyle.lpn_features import LPNFeatures, LPNLayout, decode_lpn, encode_lpn
+from jaxstyle.metrics import MotionQuality, motion_quality, reference_quality
 from jaxstyle.motion import Motion
 from jaxstyle.normalise import Normaliser, fit_normaliser
+from jaxstyle.paths import PathSignal
 from jaxstyle.pfnn_features import PFNNLayout, decode_pfnn, encode_pfnn
 from jaxstyle.phase import circular_distance, footsteps, global_phase
 from jaxstyle.selection import RolloutCheck, SweepResult, fewshot_sweep, load_adapter, write_report
@@ -53,8 +72,10 @@ __all__ = [
     "LocalPhases",
     "Motion",
     "MotionDataError",
+    "MotionQuality",
     "Normaliser",
     "PFNNLayout",
+    "PathSignal",
     "RolloutCheck",
     "SinusoidFit",
     "StyleModelConfig",
@@ -72,6 +93,7 @@ __all__ = [
     "encode_lpn",
     "encode_pfnn",
     "estimate_units_per_meter",
+    "export",
     "facing_directions",
     "fewshot",
     "fewshot_sweep",
@@ -83,6 +105,7 @@ __all__ = [
     "fit_sinusoids",
     "fit_windows",
     "foot_contacts",
+    "footik",
     "footsteps",
     "format_bvh",
     "forward_kinematics",
@@ -93,21 +116,29 @@ __all__ = [
     "load_adapter",
     "local_phases",
     "lpn",
+    "lpn_controller",
     "metrics",
     "mirror",
     "mirror_pairs",
     "mocap_dir",
     "motion_from_global",
+    "motion_quality",
     "parse_bvh",
+    "paths",
     "pfnn",
+    "preview",
     "quat",
     "read_bvh",
     "read_phase_labels",
+    "reference_quality",
     "resample",
     "rest_positions",
     "rollout",
+    "rollout_batch",
+    "rollout_motion",
     "root_trajectory",
     "rotate",
+    "save_rollout",
     "scale",
     "selection",
     "set_up_axis",

@@ -25,6 +25,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 ADAPTER_KINDS = ("full", "diagonal", "cp")
 NUM_CONTROL_POINTS = 4
@@ -162,6 +163,31 @@ def apply_adapter(adapter: dict, h_BxH: jax.Array, weights_Bx4: jax.Array) -> ja
         return blend(adapter["d"], weights_Bx4) * h_BxH + blend(adapter["b"], weights_Bx4)
     core = blend(adapter["d"], weights_Bx4) * (h_BxH @ adapter["A"].T)  # (B, rank)
     return core @ adapter["B"].T + adapter["b"]
+
+
+def blend_adapters(adapters_K: dict, weights_K) -> dict:
+    """One adapter whose residual is ``sum_k w_k R_k(h)``: a blend of ``K`` styles' adapters
+    (stacked on a leading axis, e.g. ``jax.tree.map(lambda *v: jnp.stack(v), a, b)``) with
+    barycentric weights (non-negative, summing to 1), for style interpolation at runtime.
+
+    Full and diagonal adapters are linear in their parameters, so their blend is the weighted sum.
+    The CP residual ``B (d(p) * (A h)) + b`` is not; its blend is exactly the CP adapter of rank
+    ``K r`` with the ``A``, ``d`` stacked and each ``B_k`` scaled by ``w_k`` (no approximation, and
+    it still works with :func:`discretise` and :func:`pfnn_apply_table`).
+    """
+    w = np.asarray(weights_K, dtype=np.float64)
+    k = jax.tree.leaves(adapters_K)[0].shape[0]
+    if w.shape != (k,) or (w < 0).any() or not np.isclose(w.sum(), 1.0):
+        raise ValueError(f"give one non-negative weight per adapter ({k}), summing to 1; got {w.tolist()}")
+    wj = jnp.asarray(w, jnp.float32)
+    if adapter_kind(adapters_K) != "cp":
+        return jax.tree.map(lambda v: jnp.tensordot(wj, v, axes=1), adapters_K)
+    a, d, b = adapters_K["A"], adapters_K["d"], adapters_K["B"]
+    rank = a.shape[1]
+    return {"A": a.reshape(k * rank, -1),                                 # (K r, H)
+            "d": jnp.moveaxis(d, 0, 1).reshape(d.shape[1], k * rank),   # (4, K r)
+            "B": jnp.moveaxis(b * wj[:, None, None], 0, 1).reshape(b.shape[1], k * rank),  # (H, K r)
+            "b": jnp.tensordot(wj, adapters_K["b"], axes=1)}
 
 
 # --- dropout, forward, loss ---------------------------------------------------------------------

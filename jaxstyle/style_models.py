@@ -165,6 +165,24 @@ def model_apply(params: dict, config: StyleModelConfig, x_BxI: jax.Array, gate_B
                                dropout_rate=dropout_rate, **kwargs)
 
 
+def blend_styles(config: StyleModelConfig, styles_K, weights_K):
+    """The runtime style of a blend of 2-3 styles with barycentric weights (section 4.4's triangle),
+    from their runtime styles stacked on a leading axis: FiLM vectors ``(K, 4H)``
+    (:func:`jaxstyle.film.interpolate`), one-hot rows or adapters. FiLM, the one-hot shift and the
+    full LPN/MANN adapter are linear in their parameters, so the blend is the weighted sum; the
+    PFNN's CP adapter blends exactly through :func:`jaxstyle.pfnn.blend_adapters`."""
+    if config.modulation == "film":
+        return film.interpolate(styles_K, weights_K)
+    if config.backbone == "pfnn" and config.modulation == "resad":
+        return pfnn.blend_adapters(styles_K, weights_K)
+    w = np.asarray(weights_K, dtype=np.float64)
+    k = jax.tree.leaves(styles_K)[0].shape[0]
+    if w.shape != (k,) or not 1 <= k <= 3 or (w < 0).any() or not np.isclose(w.sum(), 1.0):
+        raise ValueError(f"give 1-3 styles and one non-negative weight each, summing to 1; got {k} styles "
+                         f"and weights {w.tolist()}")
+    return jax.tree.map(lambda v: jnp.tensordot(jnp.asarray(w, v.dtype), v, axes=1), styles_K)
+
+
 def runtime_forward(params: dict, config: StyleModelConfig):
     """The runtime's network call: a jitted ``f(x_BxI, gate_BxG, style) -> z_BxO`` with dropout
     off and the style precomputed (a FiLM vector, a one-hot table row or one style's adapter);
