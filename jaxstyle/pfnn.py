@@ -74,13 +74,26 @@ def blend(values_4x: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
     return jnp.tensordot(weights_Bx4, values_4x, axes=1)
 
 
+SMALL_BATCH = 8
+"""Up to this batch size :func:`pf_dense` multiplies per control point (the runtime's one
+character per call); larger batches use one product over all control points."""
+
+
 def pf_dense(layer: dict, h_BxI: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
     """Phase-functioned dense layer: the 4 control-point layers' outputs, blended (Eq. 1).
 
     The product runs in the dtype of ``W`` (e.g. a frozen base cast to bfloat16 by
     :func:`cast_weights`), accumulating in float32; the result is float32."""
     w = layer["W"]
-    out_Bx4xO = jnp.einsum("bi,kio->bko", h_BxI.astype(w.dtype), w, preferred_element_type=jnp.float32) + layer["b"]
+    h = h_BxI.astype(w.dtype)
+    if h.shape[0] <= SMALL_BATCH:
+        # K products h @ W_k, batched over the control points: W is read in its stored (K, I, O)
+        # layout. The single product below makes XLA on CPU copy W into another layout on every
+        # call when W is an argument (not a compile-time constant): 8x slower at batch 1.
+        hk = jnp.broadcast_to(h, (w.shape[0],) + h.shape)
+        out_KxBxO = jax.lax.dot_general(hk, w, (((2,), (1,)), ((0,), (0,))), preferred_element_type=jnp.float32)
+        return jnp.einsum("bk,kbo->bo", weights_Bx4, out_KxBxO + layer["b"][:, None])
+    out_Bx4xO = jnp.einsum("bi,kio->bko", h, w, preferred_element_type=jnp.float32) + layer["b"]
     return jnp.einsum("bk,bko->bo", weights_Bx4, out_Bx4xO)
 
 
@@ -188,6 +201,19 @@ def blend_adapters(adapters_K: dict, weights_K) -> dict:
             "d": jnp.moveaxis(d, 0, 1).reshape(d.shape[1], k * rank),   # (4, K r)
             "B": jnp.moveaxis(b * wj[:, None, None], 0, 1).reshape(b.shape[1], k * rank),  # (H, K r)
             "b": jnp.tensordot(wj, adapters_K["b"], axes=1)}
+
+
+def pad_rank(adapter: dict, rank: int) -> dict:
+    """A CP adapter widened to ``rank`` with zero components: the same residual, so adapters of
+    different ranks (say, a blend from :func:`blend_adapters` and single styles) stack into one
+    batch of characters. Full and diagonal adapters are returned as they are."""
+    if adapter_kind(adapter) != "cp":
+        return adapter
+    extra = rank - adapter["A"].shape[0]
+    if extra < 0:
+        raise ValueError(f"cannot pad a rank-{adapter['A'].shape[0]} adapter down to rank {rank}")
+    return {"A": jnp.pad(adapter["A"], ((0, extra), (0, 0))), "d": jnp.pad(adapter["d"], ((0, 0), (0, extra))),
+            "B": jnp.pad(adapter["B"], ((0, 0), (0, extra))), "b": adapter["b"]}
 
 
 # --- dropout, forward, loss ---------------------------------------------------------------------

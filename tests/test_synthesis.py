@@ -113,6 +113,13 @@ def test_cp_adapter_blend_equals_the_blend_of_residuals():
                                    rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError, match="sum"):
         pfnn.blend_adapters(adapters, [0.5, 0.6, 0.1])
+    # zero-padding the rank keeps the residual, so a blend stacks with single styles
+    single = jax.tree.map(lambda v: v[0], adapters)
+    padded = pfnn.pad_rank(single, 9)
+    assert padded["A"].shape == (9, 8)
+    np.testing.assert_allclose(pfnn.apply_adapter(padded, h, w4), pfnn.apply_adapter(single, h, w4), rtol=1e-6)
+    with pytest.raises(ValueError, match="rank"):
+        pfnn.pad_rank(blended, 3)
 
 
 def test_style_blends_of_every_modulation_are_linear_in_the_output_where_they_should_be():
