@@ -35,6 +35,7 @@ import platform
 import time
 import warnings
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import numpy as np
@@ -98,7 +99,19 @@ def fewshot_specs(root: Path, seconds: float) -> list[ClipSpec]:
     return specs
 
 
-def base_model(mocap: Path, config: Config):
+class Base(NamedTuple):
+    """The trained base: shared ``params``, the training styles' ``adapters`` (stacked, in the
+    order of ``dataset.styles``), the ``normalisers`` (inputs, outputs), the ``model`` config and
+    the base ``dataset``."""
+
+    params: dict
+    adapters: dict
+    normalisers: tuple
+    model: pfnn.PFNNConfig
+    dataset: datasets.Dataset
+
+
+def base_model(mocap: Path, config: Config) -> Base:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         dataset = datasets.build_pfnn_dataset(datasets.specs_100style(mocap / "100style", styles=BASE_STYLES),
@@ -115,7 +128,7 @@ def base_model(mocap: Path, config: Config):
     x_norm, y_norm = dataset.normalisers()
     x_norm.save(config.base / "input_norm.npz")
     y_norm.save(config.base / "output_norm.npz")
-    return state["params"], (x_norm, y_norm), model
+    return Base(state["params"], state["adapters"], (x_norm, y_norm), model, dataset)
 
 
 def main() -> None:
@@ -146,7 +159,7 @@ def main() -> None:
     mocap = js.mocap_dir()
     print(f"machine: {platform.processor() or platform.machine()}, jax {jax.__version__} on "
           f"{jax.devices()[0].platform} x {jax.device_count()}")
-    params, normalisers, model = base_model(mocap, config)
+    params, _, normalisers, model, _ = base_model(mocap, config)
 
     specs = user_specs or fewshot_specs(mocap / "100style", config.seconds)
     fewshot_set = datasets.build_pfnn_dataset(specs, cache_dir=config.cache)
