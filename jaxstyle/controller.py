@@ -249,11 +249,18 @@ def rollout(params: dict, adapter: dict | None, x_norm: Normaliser, y_norm: Norm
 
 def step_fn(params: dict, adapter: dict | None, x_norm: Normaliser, y_norm: Normaliser, num_joints: int, *,
             blend_bias: float = 1.5, table: bool = False):
-    """A jitted ``f(state, control) -> (state, frame)`` that generates ONE frame: the runtime's call
-    per displayed frame when a user steers live (``control`` is one row of :class:`Controls`,
-    ``(offsets (6, 2), yaw (6,))``). ``table`` as in :func:`rollout`."""
+    """A jitted ``f(state, control, adapter=adapter) -> (state, frame)`` that generates ONE frame:
+    the runtime's call per displayed frame when a user steers live (``control`` is one row of
+    :class:`Controls`, ``(offsets (6, 2), yaw (6,))``). ``table`` as in :func:`rollout`.
+
+    The base weights and statistics are compiled into the step as constants, as a game runtime
+    loads them once: that halves the per-frame cost at batch 1 against passing ~20 weight arrays
+    every call (``benchmarks/runtime.py``). The style stays an argument, so a user can switch or
+    blend styles live (an adapter of the same kind and rank compiles once)."""
     xn, yn = normaliser_arrays(x_norm), normaliser_arrays(y_norm)
-    return functools.partial(_jit_step, params, adapter, xn, yn, int(num_joints), float(blend_bias), bool(table))
+    step = jax.jit(lambda state, control, a: _step(params, a, xn, yn, int(num_joints), float(blend_bias),
+                                                   bool(table), state, control))
+    return lambda state, control, a=adapter: step(state, control, a)
 
 
 def rollout_batch(params: dict, adapters: dict | None, x_norm: Normaliser, y_norm: Normaliser,
@@ -265,9 +272,6 @@ def rollout_batch(params: dict, adapters: dict | None, x_norm: Normaliser, y_nor
     num_joints = states.joint_pos.shape[-1] // 3
     return _rollout_batch(params, adapters, normaliser_arrays(x_norm), normaliser_arrays(y_norm), states, controls,
                           num_joints=num_joints, blend_bias=float(blend_bias))
-
-
-_jit_step = jax.jit(_step, static_argnums=(4, 5, 6))
 
 
 def _scan(params, adapter, x_norm, y_norm, state, controls, num_joints, blend_bias, table):

@@ -139,9 +139,6 @@ def _check(config: StyleModelConfig, gate_columns):
     return None if gate_columns is None else tuple(int(c) for c in gate_columns)
 
 
-_jit_step = jax.jit(_step, static_argnums=(1, 5, 6, 7))
-
-
 def _scan(params, config, style, x_norm, y_norm, state, controls, gate_columns, num_bones, blend_bias):
     def step(s, c):
         return _step(params, config, style, x_norm, y_norm, gate_columns, num_bones, blend_bias, s, c)
@@ -182,11 +179,15 @@ def rollout(params: dict, config: StyleModelConfig, style, x_norm: Normaliser, y
 
 def step_fn(params: dict, config: StyleModelConfig, style, x_norm: Normaliser, y_norm: Normaliser, num_bones: int, *,
             gate_columns=None, blend_bias: float = 1.5):
-    """A jitted ``f(state, control) -> (state, frame)`` that generates ONE frame (the runtime's call
-    per displayed frame when a user steers live); arguments as :func:`rollout`."""
+    """A jitted ``f(state, control, style=style) -> (state, frame)`` that generates ONE frame (the
+    runtime's call per displayed frame when a user steers live); arguments as :func:`rollout`.
+    The network's weights are compiled in as constants (see :func:`jaxstyle.controller.step_fn`);
+    the style (a FiLM vector, e.g. a live barycentric blend) stays an argument."""
     cols = _check(config, gate_columns)
     xn, yn = normaliser_arrays(x_norm), normaliser_arrays(y_norm)
-    return functools.partial(_jit_step, params, config, style, xn, yn, cols, int(num_bones), float(blend_bias))
+    step = jax.jit(lambda state, control, st: _step(params, config, st, xn, yn, cols, int(num_bones),
+                                                    float(blend_bias), state, control))
+    return lambda state, control, st=style: step(state, control, st)
 
 
 def rollout_batch(params: dict, config: StyleModelConfig, styles, x_norm: Normaliser, y_norm: Normaliser,

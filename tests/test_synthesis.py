@@ -117,7 +117,8 @@ def test_cp_adapter_blend_equals_the_blend_of_residuals():
     single = jax.tree.map(lambda v: v[0], adapters)
     padded = pfnn.pad_rank(single, 9)
     assert padded["A"].shape == (9, 8)
-    np.testing.assert_allclose(pfnn.apply_adapter(padded, h, w4), pfnn.apply_adapter(single, h, w4), rtol=1e-6)
+    np.testing.assert_allclose(pfnn.apply_adapter(padded, h, w4), pfnn.apply_adapter(single, h, w4), rtol=1e-6,
+                               atol=1e-6)
     with pytest.raises(ValueError, match="rank"):
         pfnn.pad_rank(blended, 3)
 
@@ -218,6 +219,11 @@ def test_lpn_batch_equals_single_rollouts_and_decodes(lpn_clip):
         one = lpn_controller.rollout(params, config, styles[c], x_norm, y_norm, states[c], controls[c])
         np.testing.assert_allclose(np.asarray(many.positions[c, :5]), np.asarray(one.positions[:5]), atol=1e-5 * scale)
         np.testing.assert_allclose(np.asarray(many.positions[c]), np.asarray(one.positions), atol=2e-3 * scale)
+    # the live step (weights compiled in, style an argument) makes the same first frames
+    step = lpn_controller.step_fn(params, config, styles[0], x_norm, y_norm, num_bones)
+    s0, f0 = step(states[2], (controls[2].offsets[0], controls[2].yaw[0]), styles[2])
+    _, f1 = step(s0, (controls[2].offsets[1], controls[2].yaw[1]), styles[2])
+    np.testing.assert_allclose(np.asarray(f1.positions), np.asarray(one.positions[1]), atol=1e-4 * scale)
     # the recorded outputs decode (numpy decode_lpn) to the same root path
     decoded = js.decode_lpn(np.asarray(one.outputs), m)
     np.testing.assert_allclose(np.asarray(one.positions)[:, 0], kinematics.global_positions(decoded)[:, 0],
@@ -253,6 +259,11 @@ def test_pfnn_table_rollout_matches_the_continuous_phase(mocap):
     scale = np.abs(np.asarray(cont.positions)).max()
     assert err[0] < 0.02 * scale
     assert np.isfinite(np.asarray(tab.positions)).all()
+    # the live step of the table runtime makes the rollout's first frame
+    step = controller.step_fn(pfnn.discretise(params), pfnn.discretise(adapter), x_norm, y_norm, m.num_joints,
+                              table=True)
+    _, frame = step(state, (c.offsets[0], c.yaw[0]))
+    np.testing.assert_allclose(np.asarray(frame.positions), np.asarray(tab.positions[0]), atol=1e-4 * scale)
 
 
 # --- a trained model along user paths (the acceptance test) -------------------------------------
