@@ -151,7 +151,7 @@ def main() -> None:
 
     config.out.mkdir(parents=True, exist_ok=True)
     fps = skeleton.fps
-    rows, written = [], []
+    rows, written, ik_rows = [], [], []
     for p in config.paths:
         idx = [k for k, (_, q) in enumerate(pairs) if q == p]
         chars = [np.asarray(out.positions[k]) for k in idx]
@@ -168,7 +168,13 @@ def main() -> None:
     for k, (s, p) in enumerate(pairs):
         one = jax.tree.map(lambda v, k=k: v[k], out)
         label = ([config.base_style, *config.styles, "blend"][s]) + f"_{p}"
-        written += export.save_rollout(config.out / "bvh" / label, one, skeleton, foot_ik=config.foot_ik).values()
+        motion = export.rollout_motion(one, skeleton)
+        if config.foot_ik:
+            fixed = export.fix_feet(motion, one)
+            ik_rows.append((names[s], p, *(metrics.foot_skating(js.global_positions(m), skeleton, fps,
+                                                                 units_per_meter=upm) for m in (motion, fixed))))
+            motion = fixed
+        written += export.save_rollout(config.out / "bvh" / label, one, skeleton, motion=motion).values()
         q = metrics.motion_quality(np.asarray(one.positions), skeleton, fps, units_per_meter=upm,
                                    path_Tx2=signals[k].positions)
         rows.append({"style": names[s], "path": p, **q.as_row()})
@@ -185,6 +191,10 @@ def main() -> None:
         lines.append(f"| {r['style']} | {r['path']} | {r['foot_skating_m_s']:.2f} | {r['contact_fraction']:.2f} "
                      f"| {100 * r['bone_error_mean']:.1f}% / {100 * r['bone_error_max']:.0f}% "
                      f"| {r['path_error_mean_m']:.2f} / {r['path_error_final_m']:.2f} | {r['jitter_m_s3']:.0f} |")
+    if ik_rows:
+        lines += ["", "foot-contact IK on the exported BVH (skating of the decoded motion, m/s):", "",
+                  "| style | path | before IK | after IK |", "|---|---|---|---|"]
+        lines += [f"| {n} | {p} | {a:.2f} | {b:.2f} |" for n, p, a, b in ik_rows]
     (config.out / "results.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     print(f"\nwritten to {config.out}: {len(written)} files, e.g. " + ", ".join(str(w) for w in written[:4]))

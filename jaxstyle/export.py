@@ -66,16 +66,18 @@ def fix_feet(motion: Motion, rollout: Rollout | LPNRollout, *, blend_frames: int
 
 
 def save_rollout(path: str | os.PathLike, rollout: Rollout | LPNRollout, skeleton: Motion, *,
-                 foot_ik: bool = False, fps: float | None = None) -> dict[str, Path]:
-    """Write ``<path>.bvh`` (the decoded motion, feet pinned when ``foot_ik``) and ``<path>.npz``
-    (the network's global joint ``positions (T, B, 3)``, ground ``origin (T, 2)``, ``yaw (T,)``,
-    ``phase`` (global ``(T,)`` or local ``(T, 8)``), ``contacts`` (LPN), the de-normalised
-    ``outputs``, ``fps``, and the skeleton's joint ``names`` and ``parents``). Returns both paths."""
+                 foot_ik: bool = False, fps: float | None = None, motion: Motion | None = None) -> dict[str, Path]:
+    """Write ``<path>.bvh`` (the decoded motion, feet pinned when ``foot_ik``; or ``motion`` when
+    given, e.g. one already post-processed) and ``<path>.npz`` (the network's global joint
+    ``positions (T, B, 3)``, ground ``origin (T, 2)``, ``yaw (T,)``, ``phase`` (global ``(T,)`` or
+    local ``(T, 8)``), ``contacts`` (LPN), the de-normalised ``outputs``, ``fps``, and the
+    skeleton's joint ``names`` and ``parents``). Returns both paths."""
     base = Path(path)
     base.parent.mkdir(parents=True, exist_ok=True)
-    motion = rollout_motion(rollout, skeleton, fps=fps)
-    if foot_ik:
-        motion = fix_feet(motion, rollout)
+    if motion is None:
+        motion = rollout_motion(rollout, skeleton, fps=fps)
+        if foot_ik:
+            motion = fix_feet(motion, rollout)
     bvh_path, npz_path = base.with_suffix(".bvh"), base.with_suffix(".npz")
     write_bvh(motion, bvh_path)
     arrays = {"positions": rollout.positions, "origin": rollout.origin, "yaw": rollout.yaw,

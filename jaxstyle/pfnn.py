@@ -75,8 +75,8 @@ def blend(values_4x: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
 
 
 SMALL_BATCH = 8
-"""Up to this batch size :func:`pf_dense` multiplies per control point (the runtime's one
-character per call); larger batches use one product over all control points."""
+"""Up to this batch size :func:`pf_dense` multiplies per control point when the weights are traced
+(the runtime's one character per call); otherwise one product covers all control points."""
 
 
 def pf_dense(layer: dict, h_BxI: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
@@ -86,10 +86,12 @@ def pf_dense(layer: dict, h_BxI: jax.Array, weights_Bx4: jax.Array) -> jax.Array
     :func:`cast_weights`), accumulating in float32; the result is float32."""
     w = layer["W"]
     h = h_BxI.astype(w.dtype)
-    if h.shape[0] <= SMALL_BATCH:
+    if h.shape[0] <= SMALL_BATCH and isinstance(w, jax.core.Tracer):
         # K products h @ W_k, batched over the control points: W is read in its stored (K, I, O)
         # layout. The single product below makes XLA on CPU copy W into another layout on every
-        # call when W is an argument (not a compile-time constant): 8x slower at batch 1.
+        # call when W is traced (a jit argument): 4-8x slower at batch 1. A W that is a
+        # compile-time constant (closed over, as in a runtime) is laid out once when compiling, and
+        # there the single product is the faster one.
         hk = jnp.broadcast_to(h, (w.shape[0],) + h.shape)
         out_KxBxO = jax.lax.dot_general(hk, w, (((2,), (1,)), ((0,), (0,))), preferred_element_type=jnp.float32)
         return jnp.einsum("bk,kbo->bo", weights_Bx4, out_KxBxO + layer["b"][:, None])

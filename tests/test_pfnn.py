@@ -195,3 +195,18 @@ def test_adapter_bytes_match_the_arrays(kind):
         assert round(pfnn.adapter_bytes(config, 50) / mib, 1) == 50.1
     if kind == "diagonal":
         assert round(pfnn.adapter_bytes(config) / mib, 3) == 0.016
+
+
+def test_pf_dense_gives_the_same_result_whether_its_weights_are_traced_or_constant():
+    """Small batches with traced weights multiply per control point; constant weights or large
+    batches use one product over all control points (see pfnn.SMALL_BATCH): same values."""
+    k0, k1, k2 = jax.random.split(jax.random.PRNGKey(3), 3)
+    layer = {"W": jax.random.normal(k0, (4, 7, 5)), "b": jax.random.normal(k1, (4, 5))}
+    for batch in (1, pfnn.SMALL_BATCH, pfnn.SMALL_BATCH + 1):
+        h = jax.random.normal(k2, (batch, 7))
+        w = pfnn.spline_weights(jnp.linspace(0.0, 0.95, batch))
+        want = np.einsum("bk,bko->bo", np.asarray(w, np.float64),
+                         np.einsum("bi,kio->bko", np.asarray(h, np.float64), np.asarray(layer["W"], np.float64))
+                         + np.asarray(layer["b"], np.float64))
+        np.testing.assert_allclose(pfnn.pf_dense(layer, h, w), want, rtol=1e-5, atol=1e-5)           # constant W
+        np.testing.assert_allclose(jax.jit(pfnn.pf_dense)(layer, h, w), want, rtol=1e-5, atol=1e-5)  # traced W
