@@ -9,6 +9,7 @@ import jaxstyle as js
 from jaxstyle import footik, kinematics, quat
 from jaxstyle.contacts import runs
 from jaxstyle.motion import Motion
+from tests.synthetic_legs import NAMES, OFFSETS, PARENTS
 
 FPS = 60.0
 
@@ -103,12 +104,6 @@ def test_contact_targets_hold_then_blend_back_without_jumps():
 
 # --- a synthetic leg, without motion capture ---
 
-NAMES = ("Hips", "Spine", "LeftWrist", "RightWrist", "LeftHip", "LeftKnee", "LeftAnkle", "LeftToe",
-         "RightHip", "RightKnee", "RightAnkle", "RightToe")
-PARENTS = np.array([-1, 0, 1, 1, 0, 4, 5, 6, 0, 8, 9, 10])
-OFFSETS = np.array([[0, 0, 0], [0, 30, 0], [30, 20, 0], [-30, 20, 0],
-                    [10, 0, 0], [0, -40, 0], [0, -40, 0], [0, -8, 15],
-                    [-10, 0, 0], [0, -40, 0], [0, -40, 0], [0, -8, 15]], dtype=np.float64)
 
 
 def _standing(num_frames: int, knee_bend_deg: float = 20.0, source: str | None = "synthetic.bvh",

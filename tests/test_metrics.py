@@ -10,16 +10,11 @@ import pytest
 import jaxstyle as js
 from jaxstyle import metrics
 from jaxstyle.motion import Motion
+from tests.synthetic_legs import NAMES, OFFSETS, PARENTS
 
 FPS = 60.0
 UPM = 100.0  # centimetres
 
-NAMES = ("Hips", "Spine", "LeftWrist", "RightWrist", "LeftHip", "LeftKnee", "LeftAnkle", "LeftToe",
-         "RightHip", "RightKnee", "RightAnkle", "RightToe")
-PARENTS = np.array([-1, 0, 1, 1, 0, 4, 5, 6, 0, 8, 9, 10])
-OFFSETS = np.array([[0, 0, 0], [0, 30, 0], [30, 20, 0], [-30, 20, 0],
-                    [10, 0, 0], [0, -40, 0], [0, -40, 0], [0, -8, 15],
-                    [-10, 0, 0], [0, -40, 0], [0, -40, 0], [0, -8, 15]], dtype=np.float64)
 ANKLES_TOES = [6, 10, 7, 11]  # the order of metrics' foot joints: ankles (left, right), then toes
 
 
