@@ -131,8 +131,9 @@ def main() -> None:
                                                skeleton.num_joints))
         speeds.append(speed)
         real_specs.append(dataset.specs[int(dataset.clip[rows[0]])])
-    rank = max(a["A"].shape[0] for a in style_adapters)  # the blend's rank is the sum of its styles'
-    style_adapters = [js.pfnn.pad_rank(a, rank) for a in style_adapters]
+    if js.pfnn.adapter_kind(style_adapters[0]) == "cp":  # a CP blend's rank is the sum of its styles'
+        rank = max(a["A"].shape[0] for a in style_adapters)
+        style_adapters = [js.pfnn.pad_rank(a, rank) for a in style_adapters]
     pairs = [(s, p) for s in range(len(names)) for p in config.paths]
     signals = [paths.named(p, config.seconds, speeds[s], units_per_meter=upm) for s, p in pairs]
     print("speeds (m/s): " + ", ".join(f"{n} {v:.2f}" for n, v in zip(names, speeds, strict=True)))
@@ -144,10 +145,10 @@ def main() -> None:
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
     out = jax.block_until_ready(controller.rollout_batch(*args))
+    seconds = time.perf_counter() - t0
     frames = len(pairs) * out.positions.shape[1]
-    print(f"\n{len(pairs)} characters x {out.positions.shape[1]} frames in one batched rollout: "
-          f"{time.perf_counter() - t0:.2f} s ({frames / (time.perf_counter() - t0):,.0f} frames/s; "
-          f"first call with compilation {first:.1f} s)")
+    print(f"\n{len(pairs)} characters x {out.positions.shape[1]} frames in one batched rollout: {seconds:.2f} s "
+          f"({frames / seconds:,.0f} frames/s; first call with compilation {first:.1f} s)")
 
     config.out.mkdir(parents=True, exist_ok=True)
     fps = skeleton.fps

@@ -12,7 +12,7 @@ generated frame ``t``.
 
 Optionally the feet are pinned while in contact (:func:`jaxstyle.footik.fix_foot_sliding`, the
 2022 paper's post-process, section 4.4), with the LPN's predicted contact labels or, for the PFNN,
-contacts labelled on the decoded motion.
+heel contacts labelled on the decoded motion by height.
 """
 
 from __future__ import annotations
@@ -57,11 +57,13 @@ def rollout_motion(rollout: Rollout | LPNRollout, skeleton: Motion, *, fps: floa
 
 def fix_feet(motion: Motion, rollout: Rollout | LPNRollout, *, blend_frames: int = 5) -> Motion:
     """``motion`` with its feet pinned while in contact: the LPN's predicted contact labels, or for
-    the PFNN (which predicts none) contacts labelled on the motion itself."""
+    the PFNN (which predicts none) heel contacts labelled on the motion itself by height alone
+    (within the paper's 1 cm of the floor, runs of at least 0.1 s). The paper's speed test is left
+    out there: a generated foot that slides is exactly the one to pin, and it would fail it."""
     if isinstance(rollout, LPNRollout):
         contacts = np.asarray(rollout.contacts, dtype=np.float64)
     else:
-        contacts = foot_contacts(motion).heel
+        contacts = foot_contacts(motion, speed_threshold=None, min_duration=0.1).heel
     return footik.fix_foot_sliding(motion, contacts, blend_frames=blend_frames)
 
 
