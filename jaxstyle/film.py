@@ -116,10 +116,4 @@ def style_vectors(params: dict, clips_CxTxF: np.ndarray, clip_style_C: np.ndarra
 def interpolate(vectors_Kx4H: jax.Array, weights_K) -> jax.Array:
     """The FiLM vector of a blend of 2 or 3 styles: ``sum_k w_k v_k`` with barycentric weights
     (non-negative, summing to 1; section 4.4's triangle of three styles)."""
-    w = np.asarray(weights_K, dtype=np.float64)
-    v = jnp.asarray(vectors_Kx4H)
-    if w.ndim != 1 or len(w) != len(v) or not 1 <= len(w) <= 3:
-        raise ValueError(f"give 1-3 style vectors and one weight each, got {len(v)} vectors and weights {w.tolist()}")
-    if (w < 0).any() or not np.isclose(w.sum(), 1.0):
-        raise ValueError(f"barycentric weights must be non-negative and sum to 1, got {w.tolist()}")
-    return jnp.tensordot(jnp.asarray(w, v.dtype), v, axes=1)
+    return pfnn.blend_trees(jnp.asarray(vectors_Kx4H), weights_K, max_count=3, what="style vector")

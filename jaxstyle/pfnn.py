@@ -180,6 +180,26 @@ def apply_adapter(adapter: dict, h_BxH: jax.Array, weights_Bx4: jax.Array) -> ja
     return core @ adapter["B"].T + adapter["b"]
 
 
+def barycentric(weights_K, count: int, *, max_count: int | None = None, what: str = "style") -> np.ndarray:
+    """``weights_K`` checked as barycentric weights of ``count`` items (one each, non-negative,
+    summing to 1; at most ``max_count`` items): the weights of every style blend in jaxstyle."""
+    w = np.asarray(weights_K, dtype=np.float64)
+    limit = "" if max_count is None else f", at most {max_count}"
+    if (w.shape != (count,) or (max_count is not None and not 1 <= count <= max_count) or (w < 0).any()
+            or not np.isclose(w.sum(), 1.0)):
+        raise ValueError(f"barycentric weights: give one non-negative weight per {what} ({count}{limit}), "
+                         f"summing to 1; got {w.tolist()}")
+    return w
+
+
+def blend_trees(trees_K, weights_K, *, max_count: int | None = None, what: str = "style"):
+    """``sum_k w_k tree_k`` of pytrees stacked on a leading axis, with :func:`barycentric` weights:
+    the blend of anything linear in its parameters (FiLM vectors, one-hot rows, full and diagonal
+    adapters)."""
+    w = barycentric(weights_K, jax.tree.leaves(trees_K)[0].shape[0], max_count=max_count, what=what)
+    return jax.tree.map(lambda v: jnp.tensordot(jnp.asarray(w, v.dtype), v, axes=1), trees_K)
+
+
 def blend_adapters(adapters_K: dict, weights_K) -> dict:
     """One adapter whose residual is ``sum_k w_k R_k(h)``: a blend of ``K`` styles' adapters
     (stacked on a leading axis, e.g. ``jax.tree.map(lambda *v: jnp.stack(v), a, b)``) with
@@ -190,13 +210,10 @@ def blend_adapters(adapters_K: dict, weights_K) -> dict:
     ``K r`` with the ``A``, ``d`` stacked and each ``B_k`` scaled by ``w_k`` (no approximation, and
     it still works with :func:`discretise` and :func:`pfnn_apply_table`).
     """
-    w = np.asarray(weights_K, dtype=np.float64)
-    k = jax.tree.leaves(adapters_K)[0].shape[0]
-    if w.shape != (k,) or (w < 0).any() or not np.isclose(w.sum(), 1.0):
-        raise ValueError(f"give one non-negative weight per adapter ({k}), summing to 1; got {w.tolist()}")
-    wj = jnp.asarray(w, jnp.float32)
     if adapter_kind(adapters_K) != "cp":
-        return jax.tree.map(lambda v: jnp.tensordot(wj, v, axes=1), adapters_K)
+        return blend_trees(adapters_K, weights_K, what="adapter")
+    k = jax.tree.leaves(adapters_K)[0].shape[0]
+    wj = jnp.asarray(barycentric(weights_K, k, what="adapter"), jnp.float32)
     a, d, b = adapters_K["A"], adapters_K["d"], adapters_K["B"]
     rank = a.shape[1]
     return {"A": a.reshape(k * rank, -1),                                 # (K r, H)

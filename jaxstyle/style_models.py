@@ -175,12 +175,7 @@ def blend_styles(config: StyleModelConfig, styles_K, weights_K):
         return film.interpolate(styles_K, weights_K)
     if config.backbone == "pfnn" and config.modulation == "resad":
         return pfnn.blend_adapters(styles_K, weights_K)
-    w = np.asarray(weights_K, dtype=np.float64)
-    k = jax.tree.leaves(styles_K)[0].shape[0]
-    if w.shape != (k,) or not 1 <= k <= 3 or (w < 0).any() or not np.isclose(w.sum(), 1.0):
-        raise ValueError(f"give 1-3 styles and one non-negative weight each, summing to 1; got {k} styles "
-                         f"and weights {w.tolist()}")
-    return jax.tree.map(lambda v: jnp.tensordot(jnp.asarray(w, v.dtype), v, axes=1), styles_K)
+    return pfnn.blend_trees(styles_K, weights_K, max_count=3)
 
 
 def runtime_forward(params: dict, config: StyleModelConfig):
