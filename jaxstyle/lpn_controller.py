@@ -94,9 +94,10 @@ def _yaw_rotate(v_Nx3: jax.Array, a) -> jax.Array:
 def advance(state: LPNState, y: jax.Array, num_bones: int) -> tuple[LPNState, LPNRollout]:
     """Move the character by one de-normalised output ``y (24 + 12 B + 18,)``: the next state and
     the generated frame (see the module docstring)."""
-    f = FUTURE_SAMPLES
+    g = LPNLayout(num_bones).output_groups
     origin, yaw = state.hist_xz[-1], state.hist_yaw[-1]
-    tx, tz, tdx, tdz = (y[i * f:(i + 1) * f] for i in range(4))
+    traj = y[g["trajectory_position"].start:g["trajectory_direction"].stop]
+    tx, tz, tdx, tdz = traj.reshape(4, FUTURE_SAMPLES)
     gx, gz = rotate_xz(tx[0], tz[0], yaw)
     new_origin = origin + jnp.stack([gx, gz])
     turn = jnp.arctan2(tdx[0], tdz[0])
@@ -104,17 +105,14 @@ def advance(state: LPNState, y: jax.Array, num_bones: int) -> tuple[LPNState, LP
     # future trajectory samples t+1+0..50, from C_t into C_{t+1}
     fx, fz = rotate_xz(tx - tx[0], tz - tz[0], -turn)
     fdx, fdz = rotate_xz(tdx, tdz, -turn)
-    o = 4 * f
-    feats = y[o:o + 12 * num_bones].reshape(4, num_bones, 3)  # positions, velocities, forward, up in C_t
+    feats = y[g["joint_position"].start:g["joint_up"].stop].reshape(4, num_bones, 3)  # pos, vel, fwd, up in C_t
     pos = feats[0]
     gpx, gpz = rotate_xz(pos[:, 0], pos[:, 2], yaw)
     positions = jnp.stack([gpx + origin[0], pos[:, 1], gpz + origin[1]], axis=-1)
     shift = jnp.stack([tx[0], 0.0, tz[0]])
     next_feats = jnp.stack([_yaw_rotate(pos - shift, -turn)] + [_yaw_rotate(v, -turn) for v in feats[1:]])
-    p = o + 12 * num_bones
-    predicted, update = y[p:p + NUM_PHASE_FEATURES], y[p + NUM_PHASE_FEATURES:p + 2 * NUM_PHASE_FEATURES]
-    phases = 0.5 * (predicted + state.phases + update)
-    contacts = y[p + 2 * NUM_PHASE_FEATURES:p + 2 * NUM_PHASE_FEATURES + 2]
+    phases = 0.5 * (y[g["local_phase"]] + state.phases + y[g["local_phase_update"]])
+    contacts = y[g["foot_contact"]]
     new_state = LPNState(jnp.concatenate([state.hist_xz[1:], new_origin[None]]),
                          jnp.concatenate([state.hist_yaw[1:], new_yaw[None]]), phases,
                          next_feats.reshape(-1), jnp.stack([fx, fz, fdx, fdz]))
