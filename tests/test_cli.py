@@ -1,0 +1,259 @@
+"""The ``jaxstyle`` command line: every subcommand run on tiny data, config files, and one-line errors.
+
+The tiny data is the procedural generator's (3 styles x 2 gaits x 10 s); the networks are a few
+units wide and train for one epoch, so these check the plumbing (files written, settings
+recorded, resuming), not the quality, which the library's own tests cover.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jaxstyle as js
+from jaxstyle import cli, datasets
+
+TINY_NET = ["--hidden", "16", "--rank", "2", "--base-epochs", "1"]
+TINY_SWEEP = ["--seconds", "3", "--sweep-epochs", "1", "--rates", "0.3", "0.5"]
+
+
+def run_cli(*argv) -> int:
+    return cli.main([str(a) for a in argv])
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("data") / "procedural"
+    assert run_cli("data", "generate", "--out", out, "--styles", "Neutral", "Crouched", "Limping", "--seconds", 10,
+                   "--quiet") == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory, tiny_data) -> Path:
+    """The demo end to end on the tiny data (base Neutral + Crouched, few-shot Limping)."""
+    run = tmp_path_factory.mktemp("runs") / "demo"
+    rc = run_cli("demo", "--data", tiny_data, "--run", run, *TINY_NET, *TINY_SWEEP, "--synth-seconds", 1, "--quiet")
+    assert rc == 0
+    return run
+
+
+def test_data_generate_writes_the_100style_layout(tiny_data):
+    specs = datasets.specs_100style(tiny_data)
+    assert {s.style for s in specs} == {"Neutral", "Crouched", "Limping"}
+    assert {s.gait for s in specs} == {"FW", "FR"}
+    # Limping is asymmetric: not mirrored; the others are
+    assert not any(s.mirror for s in specs if s.style == "Limping")
+    assert any(s.mirror for s in specs if s.style == "Neutral")
+    m = js.read_bvh(tiny_data / "Neutral" / "Neutral_FW.bvh")
+    assert m.num_frames == 600 and m.fps == 60.0
+
+
+def test_demo_leaves_gif_bvh_and_sweep_report(demo_run, capsys):
+    syn, sweep = demo_run / "synthesis", demo_run / "sweep"
+    gif = syn / "circle.gif"
+    assert gif.is_file() and gif.read_bytes()[:6] == b"GIF89a"
+    bvhs = sorted((syn / "bvh").glob("*.bvh"))
+    # Neutral and Crouched (base) and the few-shot Limping walk
+    assert [b.stem for b in bvhs] == ["Crouched_circle", "Limping_FW_circle", "Neutral_circle"]
+    m = js.read_bvh(bvhs[0])
+    assert m.num_frames == 60 and np.isfinite(m.rotations).all()
+    with open(sweep / "results.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert {(r["style"], float(r["rate"])) for r in rows} == {(s, r) for s in ("Limping_FR", "Limping_FW")
+                                                              for r in (0.3, 0.5)}
+    assert all(np.isfinite(float(r["validation_loss"])) for r in rows)
+    assert (sweep / "heatmap.png").is_file()
+    config = json.loads((demo_run / "config.json").read_text())
+    assert config["demo"]["hidden"] == 16 and config["demo"]["rates"] == [0.3, 0.5]
+    log = (demo_run / "log.txt").read_text()
+    assert "demo finished" in log and str(gif) in log
+    base = json.loads((demo_run / "base" / "base.json").read_text())
+    assert base["styles"] == ["Crouched", "Neutral"] and base["hidden"] == 16
+
+
+def test_demo_again_reuses_the_base_and_refuses_other_settings(demo_run, tiny_data, capsys):
+    # same settings: the trained base is loaded (no epoch bar, same result); other settings: refused
+    rc = run_cli("demo", "--data", tiny_data, "--run", demo_run, "--hidden", 32, "--rank", 2, "--base-epochs", 1,
+                 *TINY_SWEEP, "--synth-seconds", 1, "--quiet")
+    err = capsys.readouterr().err
+    assert rc == 1 and "hidden differ" in err and err.count("\n") == 1
+
+
+def test_train_base_then_sweep_and_synthesize(demo_run, tiny_data, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert run_cli("train-base", "--data", tiny_data, "--run", run, "--styles", "Neutral", "--fewshot-styles",
+                   "Limping", "--gaits", "FW", *TINY_NET, "--quiet") == 0
+    saved = json.loads((run / "base" / "base.json").read_text())
+    assert saved["styles"] == ["Neutral"] and saved["gaits"] == ["FW"]
+    assert (run / "base" / "log.csv").is_file()
+    # the sweep's default sets: the styles the base was not trained on, with the base's gaits
+    assert run_cli("sweep", "--run", run, *TINY_SWEEP, "--quiet") == 0
+    chosen = json.loads((run / "sweep" / "chosen_rates.json").read_text())
+    assert sorted(chosen) == ["Crouched_FW", "Limping_FW"]
+    assert all(c["rate"] in (0.3, 0.5) for c in chosen.values())
+    assert run_cli("synthesize", "--run", run, "--paths", "straight", "zigzag", "--synth-seconds", 1, "--blend",
+                   "--sets", "Crouched_FW", "Limping_FW", "--quiet", "--foot-ik") == 0
+    out = run / "synthesis"
+    assert (out / "straight.gif").is_file() and (out / "zigzag.gif").is_file()
+    names = sorted(p.stem for p in (out / "bvh").glob("*.bvh"))
+    assert len(names) == 8 and "blend_Crouched_FW_Limping_FW_zigzag" in names
+    with open(out / "quality.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    # 8 characters x paths, then one real clip each of Neutral, Crouched and Limping
+    assert len(rows) == 8 + 3 and "foot_skating_before_ik_m_s" in rows[0]
+    # a user clip as a new style
+    clip = tiny_data / "Limping" / "Limping_FR.bvh"
+    assert run_cli("sweep", "--run", run, "--clip", clip, "--clip-range", 0, 5, "--asymmetric", *TINY_SWEEP,
+                   "--quiet") == 0
+    assert list(json.loads((run / "sweep" / "chosen_rates.json").read_text())) == ["Limping_FR"]
+    capsys.readouterr()
+    assert run_cli("sweep", "--run", run, "--sets", "Nope", "--quiet") == 1
+    assert "unknown few-shot style(s) Nope" in capsys.readouterr().err
+
+
+def test_data_prepare_summarises_and_caches(tiny_data, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert run_cli("data", "prepare", "--data", tiny_data, "--run", run, "--styles", "Neutral", "Limping",
+                   "--gaits", "FW", "--lpn", "--quiet") == 0
+    out = capsys.readouterr().out
+    assert "| Neutral | 2 |" in out and "| Limping | 1 |" in out  # Neutral mirrored, Limping not
+    assert "LPN rows" in out
+    assert len(list((run / "cache").glob("pfnn-*.npz"))) == 1 and len(list((run / "cache").glob("lpn-*.npz"))) == 1
+
+
+def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert run_cli("lpn", "--data", tiny_data, "--run", run, "--styles", "Neutral", "Crouched", "--new-styles",
+                   "Limping", "--gaits", "FW", "--epochs", 1, "--hidden", 8, "--generator-hidden", 16, "--filters", 4,
+                   "--finetune-steps", 2, "--rates", 0.1, "--quiet") == 0
+    out = capsys.readouterr().out
+    assert "| Neutral |" in out and "| Limping |" in out
+    assert (run / "lpn" / "results.md").read_text().startswith("| new style | test MSE before | after @ 0.1 |")
+    with np.load(run / "lpn" / "finetuned_generators.npz") as z:
+        assert all(z[k].shape[:2] == (1, 1) for k in z.files)
+
+
+def test_render_bvh_files(tiny_data, tmp_path, capsys):
+    files = [tiny_data / "Neutral" / "Neutral_FW.bvh", tiny_data / "Crouched" / "Crouched_FW.bvh"]
+    out = tmp_path / "two.gif"
+    assert run_cli("render", *files, "--out", out, "--seconds", 1, "--every", 3, "--quiet") == 0
+    assert out.read_bytes()[:6] == b"GIF89a"
+    capsys.readouterr()
+    assert run_cli("render", files[0], "--out", tmp_path / "x.png") == 1
+    assert "must end in .gif or .mp4" in capsys.readouterr().err
+    assert run_cli("render", tmp_path / "missing.bvh", "--out", out) == 1
+    assert "missing.bvh: no such file" in capsys.readouterr().err
+
+
+def test_bench_prints_side_by_side_figures(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert run_cli("bench", "--run", run, "--sets", 2, "--rates", 0.3, "--frames", 64, "--sweep-epochs", 1,
+                   "--hidden", 16) == 0
+    out = capsys.readouterr().out
+    assert "one jit(vmap) sweep" in out and "loop of single runs" in out and "batch 1024" in out
+    figures = json.loads((run / "bench.json").read_text())
+    assert figures["sweep"] > 0 and figures["loop"] > 0
+
+
+def _closed_port() -> int:
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+def test_data_fetch_offline_fails_with_instructions(tmp_path, capsys):
+    url = f"http://127.0.0.1:{_closed_port()}/100STYLE.zip"
+    assert run_cli("data", "fetch", "100style", "--dest", tmp_path, "--url", url, "--timeout", 2) == 1
+    err = capsys.readouterr().err
+    assert url in err and "by hand" in err and "Traceback" not in err
+    assert run_cli("data", "fetch", "nope", "--dest", tmp_path) == 1
+    assert "100style" in capsys.readouterr().err
+
+
+def test_config_file_sets_defaults_and_flags_win(tiny_data, tmp_path, capsys):
+    config = tmp_path / "settings.toml"
+    config.write_text('quiet = true\n[render]\nseconds = 0.5\nevery = 4\nout = "from_config.gif"\n')
+    out = tmp_path / "flag.gif"
+    assert run_cli("render", tiny_data / "Neutral" / "Neutral_FW.bvh", "--config", config, "--out", out) == 0
+    assert out.is_file() and not Path("from_config.gif").exists()
+    config.write_text("[render]\nsecnds = 1\n")
+    capsys.readouterr()
+    assert run_cli("render", tiny_data / "Neutral" / "Neutral_FW.bvh", "--config", config) == 1
+    err = capsys.readouterr().err
+    assert "unknown setting 'secnds'" in err and "seconds" in err
+
+
+@pytest.mark.parametrize("command", [[], ["demo"], ["data"], ["data", "generate"], ["data", "fetch"],
+                                     ["data", "prepare"], ["train-base"], ["sweep"], ["lpn"], ["synthesize"],
+                                     ["render"], ["bench"]])
+def test_help_everywhere(command, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(command + ["--help"])
+    assert e.value.code == 0
+    assert "usage: jaxstyle" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["demo", "--bogus"], "unrecognized arguments: --bogus"),
+    (["demo", "--base-epochs", "x"], "invalid int value"),
+    (["train-base"], "the following arguments are required: --data"),
+    (["train-base", "--data", "/nonexistent/folder", "--run", "{tmp}/r"], "data folder /nonexistent/folder not found"),
+    (["train-base", "--data", "{tmp}", "--run", "{tmp}/r"], "is not in the 100STYLE layout"),
+    (["synthesize", "--run", "{tmp}/empty"], "no base model in"),
+    (["render", "{tmp}/none.bvh"], "none.bvh: no such file"),
+    (["demo", "--run", "{tmp}/r", "--seconds", "-1"], "--seconds must be positive"),
+    (["lpn", "--data", "{tmp}", "--run", "{tmp}/r", "--finetune-steps", "-1"], "--finetune-steps must be >= 0"),
+])
+def test_bad_arguments_give_one_line_errors(argv, message, tmp_path, capsys):
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    try:
+        rc = cli.main(argv)
+    except SystemExit as e:  # argparse's own errors
+        rc = e.code
+    assert rc != 0
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert message in err and "Traceback" not in err
+
+
+def test_console_script_errors_in_a_fresh_process(tmp_path):
+    """As a user runs it (the module behind the console script, in a new process): one line on
+    stderr, no traceback, a non-zero status."""
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    for argv, message in ((["sweep", "--rates"], "expected at least one argument"),
+                          (["render", str(tmp_path / "none.bvh")], "none.bvh: no such file")):
+        proc = subprocess.run([sys.executable, "-m", "jaxstyle.cli", *argv], capture_output=True, text=True, env=env,
+                              timeout=120)
+        assert proc.returncode != 0
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], proc.stderr
+
+
+def test_bad_style_names_give_one_line_errors(tiny_data, tmp_path, capsys):
+    assert run_cli("train-base", "--data", tiny_data, "--run", tmp_path / "r", "--styles", "Neutrall") == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "unknown base style(s) Neutrall" in err and "Crouched, Limping, Neutral" in err
+
+
+@pytest.mark.usefixtures("mocap")
+def test_demo_on_real_data(mocap, tmp_path):
+    """``jaxstyle demo --data ../shared/mocap`` with tiny settings: the same pipeline on 100STYLE."""
+    run = tmp_path / "run"
+    assert run_cli("demo", "--data", mocap, "--run", run, "--styles", "Neutral", "Angry", "--fewshot-styles",
+                   "Rushed", "--gaits", "FW", "--max-seconds", 6, *TINY_NET, *TINY_SWEEP, "--synth-seconds", 1,
+                   "--quiet") == 0
+    assert (run / "synthesis" / "circle.gif").is_file()
+    assert sorted(p.stem for p in (run / "synthesis" / "bvh").glob("*.bvh")) == ["Neutral_circle",
+                                                                                   "Rushed_FW_circle"]
+    assert json.loads((run / "sweep" / "chosen_rates.json").read_text()).keys() == {"Rushed_FW"}
