@@ -33,18 +33,14 @@ import argparse
 import dataclasses
 import platform
 import time
-import warnings
 from pathlib import Path
-from typing import NamedTuple
 
 import jax
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle import datasets, fewshot, pfnn, selection
+from jaxstyle import datasets, fewshot, pipeline, selection
 from jaxstyle.datasets import ClipSpec
-from jaxstyle.pfnn_features import valid_frames
-from jaxstyle.train_pfnn import TrainConfig, data_from_dataset, train
 
 BASE_STYLES = ("Angry", "Chicken", "Drunk", "InTheDark", "Neutral")
 FEWSHOT_STYLES = ("Aeroplane", "Elated", "Rushed")
@@ -67,68 +63,21 @@ class Config:
     asymmetric: bool = False
 
 
-def clip_specs(clips: tuple[Path, ...], mirror: bool, seconds: tuple[float, float] | None = None) -> list[ClipSpec]:
-    """One new style per user clip, named by the file's stem, and its mirror when ``mirror``;
-    ``seconds`` = (start, end) keeps that range of each file."""
-    specs = []
-    if seconds is not None and not 0 <= seconds[0] < seconds[1]:
-        raise SystemExit(f"error: --clip-range {seconds[0]:g} {seconds[1]:g}: need 0 <= START < END")
-    for path in clips:
-        if not path.is_file():
-            raise SystemExit(f"error: --clip {path}: no such file")
-        start, stop = 0, None
-        if seconds is not None:
-            fps = js.read_bvh(path).fps
-            start, stop = int(round(seconds[0] * fps)), int(round(seconds[1] * fps))
-        copies = (False, True) if mirror else (False,)
-        specs += [ClipSpec(str(path), path.stem, start, stop, mirror=m) for m in copies]
-    if len({p.stem for p in clips}) != len(clips):
-        raise SystemExit("error: two --clip files share a name; each file's stem names its style")
-    return specs
-
-
 def fewshot_specs(root: Path, seconds: float) -> list[ClipSpec]:
     """One clip of ``seconds`` (plus the trajectory window) per held-out style and gait, and its
     mirror when the style is symmetric (all three are)."""
-    window = 1000 - len(valid_frames(1000, 60.0))  # frames the trajectory window costs a clip
-    specs = []
-    for spec in datasets.specs_100style(root, styles=FEWSHOT_STYLES, gaits=LOCOMOTION_GAITS):
-        # specs_100style lists a mirrored twin only for styles Dataset_List.csv flags symmetric
-        specs.append(dataclasses.replace(spec, style=f"{spec.style}_{spec.gait}",
-                                         stop=spec.start + int(round(seconds * 60)) + window))
-    return specs
+    return pipeline.fewshot_specs(root, FEWSHOT_STYLES, seconds, LOCOMOTION_GAITS)
 
 
-class Base(NamedTuple):
-    """The trained base: shared ``params``, the training styles' ``adapters`` (stacked, in the
-    order of ``dataset.styles``), the ``normalisers`` (inputs, outputs), the ``model`` config and
-    the base ``dataset``."""
-
-    params: dict
-    adapters: dict
-    normalisers: tuple
-    model: pfnn.PFNNConfig
-    dataset: datasets.Dataset
-
-
-def base_model(mocap: Path, config: Config) -> Base:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        dataset = datasets.build_pfnn_dataset(datasets.specs_100style(mocap / "100style", styles=BASE_STYLES),
-                                              cache_dir=config.cache, skip_short=True, progress=True)
-    data = data_from_dataset(dataset)
-    layout = js.PFNNLayout((dataset.inputs.shape[1] - 48) // 6)
-    model = pfnn.PFNNConfig(input_size=layout.input_size, output_size=layout.output_size)
-    train_config = TrainConfig(model=model, epochs=config.base_epochs, half_mirrored=True)
-    print(f"base: {len(dataset.styles)} styles, {sum(map(len, data.train_rows)):,} training rows, "
-          f"{model.input_size} -> {model.hidden_size} -> {model.output_size}, {config.base_epochs} epochs")
+def base_model(mocap: Path, config: Config) -> pipeline.Base:
+    """The base (:func:`jaxstyle.pipeline.train_base`: trained into ``config.base``, or resumed, or
+    loaded) on every gait of the base styles, at the paper's sizes."""
+    settings = pipeline.BaseSettings(str(mocap / "100style"), BASE_STYLES, datasets.GAITS_100STYLE,
+                                     epochs=config.base_epochs)
     t0 = time.perf_counter()
-    state = train(data, train_config, config.base)
+    base = pipeline.train_base(settings, config.base, cache=config.cache)
     print(f"base ready in {time.perf_counter() - t0:.0f} s (this call)")
-    x_norm, y_norm = dataset.normalisers()
-    x_norm.save(config.base / "input_norm.npz")
-    y_norm.save(config.base / "output_norm.npz")
-    return Base(state["params"], state["adapters"], (x_norm, y_norm), model, dataset)
+    return base
 
 
 def main() -> None:
@@ -155,15 +104,19 @@ def main() -> None:
                     matmul_dtype=args.matmul_dtype, clips=tuple(args.clip),
                     clip_range=tuple(args.clip_range) if args.clip_range else None, asymmetric=args.asymmetric)
     # the user's clips are checked before the base is trained
-    user_specs = clip_specs(config.clips, not config.asymmetric, config.clip_range)
+    try:
+        user_specs = pipeline.user_clip_specs(config.clips, not config.asymmetric, config.clip_range)
+    except pipeline.PipelineError as e:
+        raise SystemExit(f"error: {e}") from None
     mocap = js.mocap_dir()
     print(f"machine: {platform.processor() or platform.machine()}, jax {jax.__version__} on "
           f"{jax.devices()[0].platform} x {jax.device_count()}")
-    params, _, normalisers, model, _ = base_model(mocap, config)
+    base = base_model(mocap, config)
+    params, normalisers, model = base.params, base.normalisers, base.model
 
     specs = user_specs or fewshot_specs(mocap / "100style", config.seconds)
     fewshot_set = datasets.build_pfnn_dataset(specs, cache_dir=config.cache)
-    skeleton = datasets.load_clip(specs[0], fps=60.0)
+    skeleton = base.skeleton if not user_specs else datasets.load_clip(specs[0], fps=60.0)
     sweep_config = fewshot.SweepConfig(model=model, epochs=config.epochs, rates=config.rates,
                                        adapter_dropout_only=config.adapter_dropout_only,
                                        matmul_dtype=config.matmul_dtype)

@@ -33,6 +33,8 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 DEFAULT_RUN = Path("runs/jaxstyle")
+DATA_HELP = ("a style folder: <Style>/<Style>_<GAIT>.bvh files, with 100STYLE's Frame_Cuts.csv or without it (whole "
+             "files), or a folder holding 100style/")
 DEMO_RUN = Path("runs/demo")
 
 
@@ -52,6 +54,9 @@ def _jsonable(value):
     return value
 
 
+_UNSAVED = ("handler", "debug", "quiet")
+
+
 class Run:
     """A run folder: ``say`` prints and appends to ``log.txt``; the command's settings are saved in
     ``config.json`` under the command's name (earlier commands' entries are kept)."""
@@ -59,19 +64,24 @@ class Run:
     def __init__(self, directory: Path, command: str, settings: dict, argv: Sequence[str]):
         self.dir = Path(directory)
         self.dir.mkdir(parents=True, exist_ok=True)
+        self.command = command
+        self.save_settings(settings)
+        self._log = open(self.dir / "log.txt", "a", encoding="utf-8")
+        stamp = datetime.datetime.now().isoformat(timespec="seconds")
+        self._log.write(f"\n=== {stamp} jaxstyle {' '.join(argv)}\n")
+        self._log.flush()
+
+    def save_settings(self, settings: dict) -> None:
+        """Write ``settings`` into ``config.json`` under this command's name (atomically)."""
         config_path = self.dir / "config.json"
         config = {}
         if config_path.is_file():
             with contextlib.suppress(json.JSONDecodeError):
                 config = json.loads(config_path.read_text())
-        config[command] = _jsonable(settings)
+        config[self.command] = _jsonable({k: v for k, v in settings.items() if k not in _UNSAVED})
         tmp = config_path.with_name("config.json.tmp")
         tmp.write_text(json.dumps(config, indent=2))
         os.replace(tmp, config_path)
-        self._log = open(self.dir / "log.txt", "a", encoding="utf-8")
-        stamp = datetime.datetime.now().isoformat(timespec="seconds")
-        self._log.write(f"\n=== {stamp} jaxstyle {' '.join(argv)}\n")
-        self._log.flush()
 
     def say(self, text: str = "") -> None:
         print(text, flush=True)
@@ -151,10 +161,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
         subs[key or name] = p
         return p
 
-    p = add("demo", "train, sweep and synthesise end to end on procedural styles or --data (about 6 min)",
+    p = add("demo", "train, sweep and synthesise end to end on procedural styles or --data (~5 min, 2 CPU cores)",
             DEMO_DOC, cmd_demo)
-    p.add_argument("--data", type=Path, help="a 100STYLE-layout folder (or one holding 100style/) to use instead "
-                                              "of the procedural styles, e.g. ../shared/mocap")
+    p.add_argument("--data", type=Path, help=DATA_HELP + "; used instead of the procedural styles, e.g. "
+                                               "../shared/mocap")
     _common(p, DEMO_RUN)
     _add_base_args(p, hidden=256, epochs=12, rank=16)
     _add_sweep_args(p, epochs=40)
@@ -181,7 +191,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
     _common(p, None)
     p = add("prepare", "build (and cache) the training rows of a data folder and summarise them", PREPARE_DOC,
             cmd_prepare, data_sub, "data prepare")
-    p.add_argument("--data", type=Path, required=True, help="a 100STYLE-layout folder")
+    p.add_argument("--data", type=Path, required=True, help=DATA_HELP)
     p.add_argument("--styles", nargs="+", help="styles (default: all)")
     p.add_argument("--gaits", nargs="+", help="gait codes (default: the locomotion gaits)")
     p.add_argument("--max-seconds", type=float, help="use only the first seconds of each clip")
@@ -189,7 +199,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
     _common(p)
 
     p = add("train-base", "train the 2018 base PFNN with one CP adapter per style", TRAIN_DOC, cmd_train_base)
-    p.add_argument("--data", type=Path, required=True, help="a 100STYLE-layout folder")
+    p.add_argument("--data", type=Path, required=True, help=DATA_HELP)
     _common(p)
     _add_base_args(p, hidden=512, epochs=20, rank=30)
 
@@ -205,7 +215,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
     _add_sweep_args(p, epochs=100)
 
     p = add("lpn", "train the 2022 LPN-FiLM network, test it, fine-tune it on new styles", LPN_DOC, cmd_lpn)
-    p.add_argument("--data", type=Path, required=True, help="a 100STYLE-layout folder")
+    p.add_argument("--data", type=Path, required=True, help=DATA_HELP)
     p.add_argument("--styles", nargs="+", help="training styles (default: all but --new-styles)")
     p.add_argument("--new-styles", nargs="+", help="styles to fine-tune on (default: as the few-shot styles)")
     p.add_argument("--gaits", nargs="+", help="gait codes (default: the locomotion gaits)")
@@ -272,7 +282,7 @@ def _base_settings(args, root: Path, fewshot_styles=None):
     from jaxstyle import pipeline
 
     base_styles, held_out = pipeline.split_styles(root, fewshot_styles or args.fewshot_styles, args.styles)
-    gaits = tuple(args.gaits) if args.gaits else pipeline.LOCOMOTION_GAITS
+    gaits = tuple(args.gaits) if args.gaits else None
     settings = pipeline.BaseSettings(str(root), base_styles, gaits, hidden=args.hidden, rank=args.rank,
                                      epochs=args.base_epochs, max_seconds=args.max_seconds)
     return settings, held_out
@@ -329,14 +339,14 @@ One command from nothing to a stylised animation (Mason et al. 2018 end to end):
 
 1. data: without --data, procedural stylised locomotion (jaxstyle.procedural: Neutral, Crouched,
    Bouncy, ArmSwing, Limping, Proud; walks and runs with turns and speed changes, exact phases
-   and contacts) is written to RUN/data; with --data, that 100STYLE-layout folder is used;
+   and contacts) is written to RUN/data; with --data, that style folder is used;
 2. a small base PFNN (hidden 256, CP adapters of rank 16) is trained on the base styles;
 3. a few-shot sweep learns each held-out style (Limping, Proud; or the paper's Aeroplane,
    Elated and Rushed on 100STYLE) from one clip of --seconds, at every dropout rate, in one
    compiled program, and chooses a rate per style (RUN/sweep: results.csv, heatmap.png);
 4. base and few-shot styles walk a path (RUN/synthesis: a GIF, BVH files, quality.csv).
 
-About 6 minutes on a 2-core CPU with the defaults. Re-running resumes or reuses the base.
+About 5 minutes on a 2-core CPU with the defaults. Re-running resumes or reuses the base.
 """
 
 GENERATE_DOC = """\
@@ -352,7 +362,7 @@ record 8127870. Offline, it fails at once and says how to place the files by han
 """
 
 PREPARE_DOC = """\
-Build the training rows of a 100STYLE-layout folder (PFNN features of Mason et al. 2018, and with
+Build the training rows of a style folder (PFNN features of Mason et al. 2018, and with
 --lpn those of the 2022 paper), cache them in RUN/cache (later commands load them in well under a
 second) and print per style its clips, rows, speed and step rate.
 """
@@ -418,6 +428,7 @@ def cmd_demo(args, run: Run) -> None:
         run.say(f"data: {root}")
         if args.max_seconds is None:
             args.max_seconds = 20.0  # keeps the demo short on large folders; train-base uses everything
+    run.save_settings(vars(args))  # with the defaults the data folder implied
     settings, held_out = _base_settings(args, root)
     t0 = time.perf_counter()
     base = pipeline.train_base(settings, run.dir / "base", cache=run.dir / "cache", progress=_progress(args),
@@ -426,7 +437,7 @@ def cmd_demo(args, run: Run) -> None:
     specs = pipeline.fewshot_specs(root, held_out, args.seconds, settings.gaits)
     if not specs:
         raise CLIError(f"the few-shot styles {', '.join(held_out)} have no clip of the gaits "
-                       f"{', '.join(settings.gaits)} in {root}")
+                       f"{', '.join(settings.gaits or ['(all)'])} in {root}")
     result, report, shots = _sweep(run, args, base, specs)
     chosen = json.loads(report["chosen"].read_text())
     sets = _default_sets(chosen)
@@ -524,7 +535,7 @@ def cmd_sweep(args, run: Run) -> None:
         pipeline.split_styles(root, sets, base.settings.styles)  # checks the names
         specs = pipeline.fewshot_specs(root, sets, args.seconds, args.gaits or base.settings.gaits)
         if not specs:
-            gaits = args.gaits or base.settings.gaits
+            gaits = args.gaits or base.settings.gaits or ["(all)"]
             raise CLIError(f"no clip of {', '.join(sets)} with the gaits {', '.join(gaits)}")
     run.say(f"sweep on {_machine()}: base {run.dir / 'base'}")
     _, report, _ = _sweep(run, args, base, specs)
@@ -761,7 +772,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.config is not None:
             args = _apply_config(parser, subs, args, argv)
-        settings = {k: v for k, v in vars(args).items() if k not in ("handler", "debug", "quiet")}
+        settings = vars(args)
         if name in NEEDS_BASE and not (Path(args.run) / "base" / "base.json").is_file():
             raise CLIError(f"no base model in {Path(args.run) / 'base'}: train one first with "
                            "`jaxstyle train-base --data PATH --run RUN` (or run `jaxstyle demo`)")

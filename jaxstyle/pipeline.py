@@ -28,10 +28,8 @@ from pathlib import Path
 from typing import Callable, NamedTuple, Sequence
 
 import jax
-import jax.numpy as jnp
-import numpy as np
 
-from jaxstyle import datasets, fewshot, pfnn, selection
+from jaxstyle import datasets, fewshot, pfnn, selection, synthesis
 from jaxstyle.datasets import ClipSpec
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.motion import Motion
@@ -54,17 +52,21 @@ class PipelineError(JaxstyleError):
 # --- data ---------------------------------------------------------------------------------------
 
 def style_root(path: str | os.PathLike) -> Path:
-    """The folder in the 100STYLE layout at ``path``: ``path`` itself when it holds ``Frame_Cuts.csv``,
-    else its ``100style``/``100STYLE`` sub-folder (so ``../shared/mocap`` works)."""
+    """The style folder at ``path``: ``path`` itself or its ``100style``/``100STYLE`` sub-folder (so
+    ``../shared/mocap`` works) when it holds ``Frame_Cuts.csv`` (the 100STYLE layout), else ``path``
+    when it has style sub-folders of ``<Style>/<Style>_<GAIT>.bvh`` files (your own data: whole
+    files, every one mirrored too unless a ``Dataset_List.csv`` says a style is not symmetric)."""
     path = Path(path).expanduser()
     if not path.is_dir():
         raise PipelineError(f"data folder {path} not found")
     for candidate in (path, path / "100style", path / "100STYLE"):
         if (candidate / "Frame_Cuts.csv").is_file():
             return candidate.resolve()
-    raise PipelineError(f"{path} is not in the 100STYLE layout: no Frame_Cuts.csv there or in {path}/100style "
-                        "(expected <root>/<Style>/<Style>_<GAIT>.bvh with Frame_Cuts.csv and Dataset_List.csv; "
-                        "`jaxstyle data generate` writes such a folder, `jaxstyle data fetch 100style` downloads one)")
+    if available_styles(path):
+        return path.resolve()
+    raise PipelineError(f"{path} holds no style folders: expected <root>/<Style>/<Style>_<GAIT>.bvh, as in 100STYLE "
+                        f"(with its Frame_Cuts.csv, or without it to use whole files), or a 100style sub-folder; "
+                        "`jaxstyle data generate` writes such a folder, `jaxstyle data fetch 100style` downloads one")
 
 
 def available_styles(root: Path) -> tuple[str, ...]:
@@ -114,10 +116,38 @@ def _cut(spec: ClipSpec, seconds: float | None) -> ClipSpec:
     return dataclasses.replace(spec, stop=stop if spec.stop is None else min(spec.stop, stop))
 
 
+def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None) -> list[ClipSpec]:
+    """Whole-file clips of ``<root>/<Style>/<Style>_<GAIT>.bvh`` for a folder without
+    ``Frame_Cuts.csv``: every gait found unless ``gaits`` names some; each clip mirrored too unless
+    ``Dataset_List.csv`` (100STYLE's columns ``Style Name``, ``Symmetric``) says the style is not
+    symmetric."""
+    symmetric = {}
+    if (root / "Dataset_List.csv").is_file():
+        symmetric = {r["Style Name"]: r["Symmetric"].strip().lower() == "yes"
+                     for r in datasets._read_csv(root / "Dataset_List.csv")}
+    specs = []
+    for style in styles:
+        for f in sorted((root / style).glob(f"{style}_*.bvh")):
+            gait = f.stem[len(style) + 1:]
+            if gaits is not None and gait not in gaits:
+                continue
+            for mirror in (False, True) if symmetric.get(style, True) else (False,):
+                specs.append(ClipSpec(str(f), style, mirror=mirror, gait=gait))
+    missing = sorted(set(styles) - {s.style for s in specs})
+    if missing:
+        raise PipelineError(f"styles {missing} have no clip under {root}"
+                            + (f" (gaits {', '.join(gaits)})" if gaits else ""))
+    return specs
+
+
 def clip_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None,
                max_seconds: float | None = None) -> list[ClipSpec]:
-    """Clips of ``styles`` and ``gaits`` (default :data:`LOCOMOTION_GAITS`), each cut to its first
-    ``max_seconds`` (default: the whole Frame_Cuts range); mirrored where the style is symmetric."""
+    """Clips of ``styles`` and ``gaits``, each cut to its first ``max_seconds`` (default: the whole
+    Frame_Cuts range, or the whole file); mirrored where the style is symmetric. With
+    ``Frame_Cuts.csv`` (the 100STYLE layout) ``gaits`` defaults to :data:`LOCOMOTION_GAITS`, without
+    it to every gait found (:func:`folder_specs`)."""
+    if not (root / "Frame_Cuts.csv").is_file():
+        return [_cut(s, max_seconds) for s in folder_specs(root, styles, gaits)]
     gaits = tuple(gaits or LOCOMOTION_GAITS)
     try:
         specs = datasets.specs_100style(root, styles=styles, gaits=gaits)
@@ -176,13 +206,14 @@ def build(specs: Sequence[ClipSpec], cache: str | os.PathLike | None, progress: 
 
 @dataclasses.dataclass(frozen=True)
 class BaseSettings:
-    """What a base model was trained on and how: the 100STYLE-layout ``data`` folder, its ``styles``
-    and ``gaits`` (clips cut to ``max_seconds`` if set), the network's ``hidden`` size, the CP
+    """What a base model was trained on and how: the style folder ``data`` (:func:`style_root`), its
+    ``styles`` and ``gaits`` (``None``: the default of :func:`clip_specs`; clips cut to
+    ``max_seconds`` if set), the network's ``hidden`` size, the CP
     adapters' ``rank``, ``epochs`` (paper: 25, batch 32, Adam 1e-4, dropout 0.3) and ``seed``."""
 
     data: str
     styles: tuple[str, ...]
-    gaits: tuple[str, ...] = LOCOMOTION_GAITS
+    gaits: tuple[str, ...] | None = None
     hidden: int = 512
     rank: int = 30
     epochs: int = 20
@@ -202,7 +233,8 @@ class BaseSettings:
     @classmethod
     def from_json(cls, d: dict) -> "BaseSettings":
         d = dict(d)
-        d["styles"], d["gaits"] = tuple(d["styles"]), tuple(d["gaits"])
+        d["styles"] = tuple(d["styles"])
+        d["gaits"] = None if d.get("gaits") is None else tuple(d["gaits"])
         return cls(**d)
 
 
@@ -335,7 +367,7 @@ def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
                ) -> list[Character]:
     """:class:`~jaxstyle.synthesis.Character` s: base styles (the base network with that style's
     adapter), few-shot sets (their chosen adapters from ``sweep_dir``), and with ``blend`` a 50/50
-    blend of the first two few-shot sets (:func:`jaxstyle.pfnn.blend_adapters`, exact for CP)."""
+    blend of the first two few-shot sets (:func:`jaxstyle.synthesis.blend_character`)."""
     out = []
     for style in base_styles:
         if style not in base.dataset.styles:
@@ -352,13 +384,5 @@ def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
         shot_chars = out[len(base_styles):]
         if len(shot_chars) < 2:
             raise PipelineError("a blend needs two few-shot sets")
-        a, b = shot_chars[:2]
-        if pfnn.adapter_kind(a.adapter) == "cp":
-            rank = max(a.adapter["A"].shape[0], b.adapter["A"].shape[0])
-            pair = [pfnn.pad_rank(a.adapter, rank), pfnn.pad_rank(b.adapter, rank)]
-        else:
-            pair = [a.adapter, b.adapter]
-        stacked = jax.tree.map(lambda *v: jnp.stack(v), *pair)
-        out.append(Character(f"50/50 {a.label} + {b.label}", f"blend_{a.label}_{b.label}",
-                             pfnn.blend_adapters(stacked, np.array([0.5, 0.5])), a.dataset, a.style))
+        out.append(synthesis.blend_character(*shot_chars[:2]))
     return out

@@ -75,7 +75,8 @@ def _stack(items):
 def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], characters: Sequence[Character],
                skeleton: Motion, out: str | Path, *, path_names: Sequence[str] = ("circle",), seconds: float = 8.0,
                speed: float | None = None, foot_ik: bool = False, gif: bool = True, mp4: bool = False,
-               every: int = 2, reference: bool = True, progress: bool = False) -> SynthesisResult:
+               every: int = 2, contact_sheet: bool = False, reference: bool = True,
+               progress: bool = False) -> SynthesisResult:
     """Drive every character along every path and write the results under ``out``.
 
     Args:
@@ -86,11 +87,12 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
       path_names: any of :data:`jaxstyle.paths.PATHS`; ``seconds`` long each.
       speed: m/s for every character; ``None``: each walks at its style's own median speed.
       foot_ik: pin the feet in contact in the BVH files; ``gif``/``mp4``: write animations
-        (``mp4`` needs ffmpeg); ``every``: draw every n-th frame of the animations.
+        (``mp4`` needs ffmpeg); ``every``: draw every n-th frame of the animations;
+        ``contact_sheet``: a PNG strip of 6 frames of the first path.
       reference: add the quality figures of one real clip per style to the table.
 
     Writes ``<path>.gif`` per path, ``bvh/<label>_<path>.bvh`` and ``.npz`` per character and
-    path, and ``quality.csv``.
+    path, ``contact_sheet.png`` if asked, and ``quality.csv``.
     """
     if not characters:
         raise ValueError("no characters to drive")
@@ -136,6 +138,9 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
             files.append(preview.render_gif(out / f"{p}.gif", chars, skeleton.parents, fps, **kwargs))
         if mp4:
             files.append(preview.render_mp4(out / f"{p}.mp4", chars, skeleton.parents, fps, **kwargs))
+        if contact_sheet and p == path_names[0]:
+            files.append(preview.contact_sheet(out / "contact_sheet.png", chars, skeleton.parents, frames=6,
+                                               titles=titles, paths=path_xz, units_per_meter=upm, fps=fps))
     for k, (s, p) in enumerate(pairs):
         one = jax.tree.map(lambda v, k=k: v[k], rollouts)
         c = characters[s]
@@ -146,8 +151,9 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
             motion = export.rollout_motion(one, skeleton)
             if foot_ik:
                 fixed = export.fix_feet(motion, one)
-                row["foot_skating_before_ik_m_s"] = metrics.foot_skating(global_positions(motion), skeleton, fps,
-                                                                         units_per_meter=upm)
+                row["foot_skating_before_ik_m_s"], row["foot_skating_after_ik_m_s"] = (
+                    metrics.foot_skating(global_positions(m), skeleton, fps, units_per_meter=upm)
+                    for m in (motion, fixed))
                 motion = fixed
             files += export.save_rollout(out / "bvh" / f"{c.label}_{p}", one, skeleton, motion=motion).values()
         rows.append(row)
@@ -177,11 +183,31 @@ def write_quality(rows: list[dict], path: Path) -> Path:
 
 
 def quality_table(rows: list[dict]) -> list[str]:
-    """Markdown lines of the main quality figures."""
-    lines = ["| style | path | skating m/s | feet on floor | bone error mean / max | path error mean / final m |",
-             "|---|---|---|---|---|---|"]
+    """Markdown lines of the main quality figures, and of the foot IK's effect when it was applied."""
+    lines = ["| style | path | skating m/s | feet on floor | bone error mean / max | path error mean / final m "
+             "| jitter m/s^3 |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['style']} | {r['path']} | {r['foot_skating_m_s']:.2f} | {r['contact_fraction']:.2f} "
                      f"| {100 * r['bone_error_mean']:.1f}% / {100 * r['bone_error_max']:.0f}% "
-                     f"| {r['path_error_mean_m']:.2f} / {r['path_error_final_m']:.2f} |")
+                     f"| {r['path_error_mean_m']:.2f} / {r['path_error_final_m']:.2f} | {r['jitter_m_s3']:.0f} |")
+    ik = [r for r in rows if r.get("foot_skating_before_ik_m_s") not in (None, "")]
+    if ik:
+        lines += ["", "foot-contact IK on the exported BVH (skating of the decoded motion, m/s; the table above "
+                  "measures the network's own joint positions):", "", "| style | path | before IK | after IK |",
+                  "|---|---|---|---|"]
+        lines += [f"| {r['style']} | {r['path']} | {r['foot_skating_before_ik_m_s']:.2f} "
+                  f"| {r['foot_skating_after_ik_m_s']:.2f} |" for r in ik]
     return lines
+
+
+def blend_character(a: Character, b: Character, weights: Sequence[float] = (0.5, 0.5)) -> Character:
+    """A character in a blend of two styles' adapters (:func:`jaxstyle.pfnn.blend_adapters`: exact for
+    CP adapters, whose ranks add), starting like ``a``."""
+    pair = [a.adapter, b.adapter]
+    if pfnn.adapter_kind(a.adapter) == "cp":
+        rank = max(x["A"].shape[0] for x in pair)
+        pair = [pfnn.pad_rank(x, rank) for x in pair]
+    stacked = jax.tree.map(lambda *v: jnp.stack(v), *pair)
+    w = np.asarray(weights, dtype=np.float64)
+    name = " + ".join(f"{100 * wi:.0f}% {c.label}" for wi, c in zip(w, (a, b), strict=True))
+    return Character(name, f"blend_{a.label}_{b.label}", pfnn.blend_adapters(stacked, w), a.dataset, a.style)

@@ -130,6 +130,26 @@ def test_data_prepare_summarises_and_caches(tiny_data, tmp_path, capsys):
     assert len(list((run / "cache").glob("pfnn-*.npz"))) == 1 and len(list((run / "cache").glob("lpn-*.npz"))) == 1
 
 
+def test_own_style_folder_without_csv_files(tiny_data, tmp_path, capsys):
+    """<root>/<Style>/<Style>_<GAIT>.bvh without Frame_Cuts.csv: whole files, every gait found,
+    mirrored unless Dataset_List.csv says the style is not symmetric."""
+    import shutil
+
+    root = tmp_path / "mine"
+    for style, gait, name in (("Neutral", "FW", "walk"), ("Neutral", "FR", "run"), ("Limping", "FW", "walk")):
+        (root / style).mkdir(parents=True, exist_ok=True)
+        shutil.copy(tiny_data / style / f"{style}_{gait}.bvh", root / style / f"{style}_{name}.bvh")
+    run = tmp_path / "run"
+    assert run_cli("data", "prepare", "--data", root, "--run", run, "--quiet") == 0
+    out = capsys.readouterr().out
+    assert "| Neutral | 4 |" in out and "| Limping | 2 |" in out  # everything mirrored
+    (root / "Dataset_List.csv").write_text("Style Name,Description,Stochastic,Symmetric,Notes\n"
+                                           "Limping,a limp,No,No,\nNeutral,plain,No,Yes,\n")
+    assert run_cli("data", "prepare", "--data", root, "--run", run, "--gaits", "walk", "--quiet") == 0
+    out = capsys.readouterr().out
+    assert "| Neutral | 2 |" in out and "| Limping | 1 |" in out
+
+
 def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     run = tmp_path / "run"
     assert run_cli("lpn", "--data", tiny_data, "--run", run, "--styles", "Neutral", "Crouched", "--new-styles",
@@ -209,7 +229,7 @@ def test_help_everywhere(command, capsys):
     (["demo", "--base-epochs", "x"], "invalid int value"),
     (["train-base"], "the following arguments are required: --data"),
     (["train-base", "--data", "/nonexistent/folder", "--run", "{tmp}/r"], "data folder /nonexistent/folder not found"),
-    (["train-base", "--data", "{tmp}", "--run", "{tmp}/r"], "is not in the 100STYLE layout"),
+    (["train-base", "--data", "{tmp}", "--run", "{tmp}/r"], "holds no style folders"),
     (["synthesize", "--run", "{tmp}/empty"], "no base model in"),
     (["render", "{tmp}/none.bvh"], "none.bvh: no such file"),
     (["demo", "--run", "{tmp}/r", "--seconds", "-1"], "--seconds must be positive"),

@@ -68,6 +68,7 @@ def test_teacher_forced_loop_reproduces_the_encoded_inputs(clip):
         np.testing.assert_allclose(np.asarray(frame.positions), real, atol=1e-3 * np.abs(real).max())
 
 
+@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_rollout_vmaps_over_adapters_and_is_finite(clip):
     m, phase, x, y, t = clip
     config = pfnn.PFNNConfig(input_size=x.shape[1], hidden_size=32, output_size=y.shape[1], rank=4)

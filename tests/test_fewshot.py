@@ -74,6 +74,7 @@ def test_sweep_lowers_the_training_loss_and_leaves_the_base_alone():
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_adapter_dropout_only_mode_matches_its_definition():
     """Cached frozen activations give the forward of pfnn_apply with dropout on the adapter path
     only, and the sweep in that mode still equals single runs."""
@@ -101,6 +102,7 @@ def test_adapter_dropout_only_mode_matches_its_definition():
     _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, 1, 1)
 
 
+@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_sharded_grid_matches_one_device():
     """2 forced host devices (the flag must precede importing jax, hence a subprocess)."""
     import os
@@ -162,7 +164,7 @@ def test_bfloat16_sweep_equals_its_single_runs():
         fewshot.SweepConfig(matmul_dtype="float16")
 
 
-@pytest.mark.parametrize("kind", ["full", "diagonal"])
+@pytest.mark.parametrize("kind", [pytest.param("full", marks=pytest.mark.slow), "diagonal"])
 def test_sweep_with_full_and_diagonal_adapters_equals_single_runs(kind):
     """CP is the default; the other two adapter kinds of the 2018 paper sweep the same way."""
     model = dataclasses.replace(SMALL, adapter=kind)

@@ -158,6 +158,7 @@ def test_still_clip_has_zero_amplitude_and_constant_phase(mocap):
     assert (res.amplitude == 0).all() and np.ptp(res.phase) == 0 and (res.features == 0).all()
 
 
+@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_every_shared_clip_is_labelled(mocap):
     paths = [p for p in all_bvh(mocap) if p.parent.name != "pfnn_excerpt"]
     assert len(paths) > 60

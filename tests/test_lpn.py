@@ -202,7 +202,12 @@ def _gate(config, n):
     return jax.random.normal(jax.random.PRNGKey(5), (n, config.gating_input))
 
 
-@pytest.mark.parametrize("backbone,modulation", list(style_models.TABLE2.values()))
+# the slowest three (about 80 s together) run with -m slow; the default run keeps one of each backbone and modulation
+_SLOW_MODELS = {("lpn", "onehot"), ("pfnn", "onehot"), ("pfnn", "resad")}
+
+
+@pytest.mark.parametrize("backbone,modulation", [pytest.param(*m, marks=pytest.mark.slow) if m in _SLOW_MODELS else m
+                                                 for m in style_models.TABLE2.values()])
 def test_every_model_runs_and_its_gradients_pass_finite_differences(backbone, modulation):
     config = small_config(backbone, modulation)
     params = style_models.init_model(KEY, config)
@@ -273,7 +278,8 @@ def synthetic_data(num_styles=3, rows=96, clips=4, seed=0) -> train_lpn.StyleDat
                                tuple(f"s{s}" for s in range(num_styles)), bones)
 
 
-@pytest.mark.parametrize("modulation", ["film", "onehot", "resad"])
+@pytest.mark.parametrize("modulation", ["film", pytest.param("onehot", marks=pytest.mark.slow),
+                                        pytest.param("resad", marks=pytest.mark.slow)])
 def test_training_lowers_the_loss_and_resumes_exactly(tmp_path, modulation):
     data = synthetic_data()
     config = train_lpn.LPNTrainConfig(model=small_config("lpn", modulation), epochs=4, batch_size=8,
@@ -376,6 +382,7 @@ def test_training_clips_lie_in_training_rows(real_data):
         ds.clips_of_style("Zombie")
 
 
+@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_a_small_model_trains_on_real_clips(real_data):
     ds, skeleton = real_data
     data = train_lpn.style_data(ds, skeleton)

@@ -84,7 +84,7 @@ def test_output_blending_equals_weight_blending(kind):
     np.testing.assert_allclose(got, _explicit_forward(params, adapter, np.asarray(x), phase), rtol=1e-4, atol=1e-5)
 
 
-@pytest.mark.parametrize("kind", ["full", "diagonal", "cp"])
+@pytest.mark.parametrize("kind", [pytest.param("full", marks=pytest.mark.slow), "diagonal", "cp"])
 def test_gradients_pass_finite_differences(kind):
     config = pfnn.PFNNConfig(**SMALL, adapter=kind)
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), config)
@@ -106,7 +106,7 @@ def test_adapter_sizes_match_the_formulas(kind):
     assert pfnn.adapter_size(pfnn.PFNNConfig(adapter="cp")) == 2 * 30 * 512 + 4 * 30 + 512
 
 
-@pytest.mark.parametrize("kind", ["full", "diagonal", "cp"])
+@pytest.mark.parametrize("kind", [pytest.param("full", marks=pytest.mark.slow), "diagonal", "cp"])
 def test_discretised_table_matches_at_bin_centres(kind):
     config = pfnn.PFNNConfig(**SMALL, adapter=kind)
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), config)

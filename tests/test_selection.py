@@ -26,6 +26,7 @@ def test_choose_rates_rule():
     np.testing.assert_array_equal(ok, [True, True, False, True])
 
 
+@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_adding_a_style_leaves_the_others_unchanged():
     """The lifelong property: a new few-shot style (appended) gets its own adapter, keys and
     batches; every earlier style's adapter, and so its outputs, stay the same."""
@@ -91,6 +92,7 @@ def test_holdout_keeps_the_last_cycle_of_each_clip(fewshot_set):
     assert len(capped) < 0.5 * len(val)
 
 
+@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_fewshot_sweep_end_to_end_writes_a_report(fewshot_set, tmp_path):
     """An untrained base, 2 epochs: checks the plumbing (shapes, files, round trips), not quality."""
     dataset, specs = fewshot_set

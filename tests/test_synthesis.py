@@ -197,6 +197,7 @@ def _small_lpn(x, y, backbone="lpn", modulation="film"):
     return config, params, x_norm, y_norm
 
 
+@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_lpn_batch_equals_single_rollouts_and_decodes(lpn_clip):
     m, feats = lpn_clip
     x, y, p = feats.inputs, feats.outputs, feats.phases

@@ -60,6 +60,7 @@ def test_resume_gives_the_uninterrupted_result(tmp_path):
         train(data, TrainConfig(model=SMALL, epochs=3), tmp_path / "b", progress=False)
 
 
+@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_data_parallel_matches_one_device(tmp_path):
     """Runs in a subprocess with 2 forced host devices (the flag must precede importing jax)."""
     script = textwrap.dedent(f"""
