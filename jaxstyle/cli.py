@@ -317,7 +317,8 @@ def _synthesize(run: Run, args, base, sweep_dir, shots, chosen, base_styles, set
     t0 = time.perf_counter()
     result = synthesis.synthesize(base.params, base.normalisers, chars, base.skeleton, run.dir / "synthesis",
                                   path_names=args.paths, seconds=args.synth_seconds, speed=args.speed,
-                                  foot_ik=args.foot_ik, mp4=args.mp4, every=args.every, progress=_progress(args))
+                                  foot_ik=args.foot_ik, mp4=args.mp4, every=args.every, contact_sheet=True,
+                                  progress=_progress(args))
     run.say(f"synthesis: {len(chars)} characters x {len(args.paths)} paths, {result.frames:,} frames in one batched "
             f"rollout: {result.seconds:.2f} s ({result.frames / result.seconds:,.0f} frames/s); with GIF and BVH "
             f"writing {_elapsed(t0)}")
@@ -445,7 +446,7 @@ def cmd_demo(args, run: Run) -> None:
     synth = _synthesize(run, args, base, run.dir / "sweep", shots, chosen, base_styles, sets)
     run.say("")
     _written(run, "written", [run.dir / "base", report["csv"], report["heatmap"], report["chosen"]]
-             + [f for f in synth.files if f.suffix in (".gif", ".mp4", ".csv")]
+             + [f for f in synth.files if f.suffix in (".gif", ".mp4", ".csv", ".png")]
              + [run.dir / "synthesis" / "bvh" / f"({sum(f.suffix == '.bvh' for f in synth.files)} BVH files)"])
     run.say(f"config and log: {run.dir / 'config.json'}, {run.dir / 'log.txt'}")
     run.say(f"demo finished in {_elapsed(t_all)}")
