@@ -259,10 +259,19 @@ def _progress(args) -> bool:
     return not args.quiet
 
 
+def _cpu_name() -> str:
+    """The CPU's model name (Linux), else what :mod:`platform` knows."""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.processor() or platform.machine()
+
+
 def _machine() -> str:
     import jax
 
-    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, jax {jax.__version__} on "
+    return (f"{_cpu_name()}, {os.cpu_count()} cores, jax {jax.__version__} on "
             f"{jax.devices()[0].platform} x {jax.device_count()}")
 
 
