@@ -36,6 +36,8 @@ DEFAULT_RUN = Path("runs/jaxstyle")
 DATA_HELP = ("a style folder: <Style>/<Style>_<GAIT>.bvh files, with 100STYLE's Frame_Cuts.csv or without it (whole "
              "files), or a folder holding 100style/")
 DEMO_RUN = Path("runs/demo")
+DEMO_MAX_BASE_STYLES = 8
+PAPER_BASE_STYLES = ("Angry", "Chicken", "Drunk", "InTheDark", "Neutral")  # experiments/fewshot_sweep.py
 
 
 class CLIError(Exception):
@@ -416,6 +418,15 @@ The fuller benchmarks are the scripts in the repository's benchmarks/ folder.
 """
 
 
+def demo_base_styles(base_styles: Sequence[str]) -> list[str]:
+    """The demo's base styles on real data: all of them up to :data:`DEMO_MAX_BASE_STYLES`, else the
+    paper's sweep base styles present (or the first ones), so the whole 100STYLE takes minutes."""
+    if len(base_styles) <= DEMO_MAX_BASE_STYLES:
+        return list(base_styles)
+    paper = [s for s in PAPER_BASE_STYLES if s in base_styles]
+    return (paper or list(base_styles))[:DEMO_MAX_BASE_STYLES]
+
+
 def cmd_demo(args, run: Run) -> None:
     from jaxstyle import pipeline, procedural
 
@@ -438,6 +449,12 @@ def cmd_demo(args, run: Run) -> None:
         run.say(f"data: {root}")
         if args.max_seconds is None:
             args.max_seconds = 20.0  # keeps the demo short on large folders; train-base uses everything
+        if args.styles is None:
+            all_base, _ = pipeline.split_styles(root, args.fewshot_styles)
+            args.styles = demo_base_styles(all_base)
+            if len(args.styles) < len(all_base):
+                run.say(f"the demo trains on {len(args.styles)} of the {len(all_base)} base styles "
+                        f"({', '.join(args.styles)}); `jaxstyle train-base` uses them all")
     run.save_settings(vars(args))  # with the defaults the data folder implied
     settings, held_out = _base_settings(args, root)
     t0 = time.perf_counter()

@@ -120,6 +120,13 @@ def test_train_base_then_sweep_and_synthesize(demo_run, tiny_data, tmp_path, cap
     assert "unknown few-shot style(s) Nope" in capsys.readouterr().err
 
 
+def test_demo_keeps_large_folders_small():
+    many = [f"S{i:02d}" for i in range(20)]
+    assert cli.demo_base_styles(many[:8]) == many[:8]
+    assert cli.demo_base_styles(many) == many[:8]
+    assert cli.demo_base_styles(many + ["Neutral", "Angry"]) == ["Angry", "Neutral"]
+
+
 def test_data_prepare_summarises_and_caches(tiny_data, tmp_path, capsys):
     run = tmp_path / "run"
     assert run_cli("data", "prepare", "--data", tiny_data, "--run", run, "--styles", "Neutral", "Limping",
