@@ -168,6 +168,19 @@ def test_full_download_verify_unpack(server, monkeypatch, tmp_path):
     assert F.missing_files(root, "100style") == []
 
 
+def test_command_line_fetch_downloads_and_says_where(server, monkeypatch, tmp_path, capsys):
+    """``jaxstyle data fetch 100style --dest D --url U`` (the command line over :func:`fetch`)."""
+    from jaxstyle import cli
+
+    use_md5(monkeypatch, MD5)
+    assert cli.main(["data", "fetch", "100style", "--dest", str(tmp_path / "d"), "--url", server.url,
+                     "--quiet"]) == 0
+    out = capsys.readouterr().out
+    root = tmp_path / "d" / "100STYLE"
+    check_unpacked(root, tmp_path / "d")
+    assert f"--data {root}" in out
+
+
 def test_interrupted_download_resumes_on_rerun(server, monkeypatch, tmp_path):
     use_md5(monkeypatch, MD5)
     server.cut_after = 7000
