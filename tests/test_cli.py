@@ -21,6 +21,9 @@ import pytest
 import jaxstyle as js
 from jaxstyle import cli, datasets
 
+# the tiny few-shot clips hold fewer rows than a cycle's worth for validation; selection says so
+pytestmark = pytest.mark.filterwarnings("ignore:style .* the last 1 cycle:UserWarning")
+
 TINY_NET = ["--hidden", "16", "--rank", "2", "--base-epochs", "1"]
 TINY_SWEEP = ["--seconds", "3", "--sweep-epochs", "1", "--rates", "0.3", "0.5"]
 
