@@ -505,7 +505,7 @@ def cmd_fetch(args, run: None) -> None:
 def cmd_prepare(args, run: Run) -> None:
     import numpy as np
 
-    from jaxstyle import datasets, pipeline
+    from jaxstyle import datasets, pipeline, synthesis
     from jaxstyle.contacts import estimate_units_per_meter
 
     root = pipeline.style_root(args.data)
@@ -522,7 +522,7 @@ def cmd_prepare(args, run: Run) -> None:
         rows = ds.rows_of_style(s)
         clips = len(np.unique(ds.clip[rows]))
         split = [int((ds.split[rows] == k).sum()) for k in range(3)]
-        speed = np.median(np.linalg.norm(ds.outputs[rows, :2], axis=1)) * 60.0 / upm
+        speed = synthesis.own_speed(ds, rows, upm)
         dphase = np.mod(np.diff(ds.phases[rows, 0]), 1.0)
         steps = 2 * 60.0 * np.median(dphase[dphase < 0.5]) if (dphase < 0.5).any() else float("nan")
         run.say(f"| {s} | {clips} | {split[0]} / {split[1]} / {split[2]} | {speed:.2f} | {steps:.2f} |")

@@ -106,13 +106,19 @@ def _read_csv(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+def symmetric_styles(path: str | os.PathLike) -> dict[str, bool]:
+    """``{style: symmetric}`` from a 100STYLE ``Dataset_List.csv`` (columns ``Style Name`` and
+    ``Symmetric``, Yes/No): which styles may be mirrored."""
+    return {r["Style Name"]: r["Symmetric"].strip().lower() == "yes" for r in _read_csv(Path(path))}
+
+
 def specs_100style(root: str | os.PathLike, *, styles: Sequence[str] | None = None,
                    gaits: Sequence[str] = GAITS_100STYLE) -> list[ClipSpec]:
     """Clips of a 100STYLE folder: every ``<Style>/<Style>_<GAIT>.bvh`` present, cut to its
     ``Frame_Cuts.csv`` range, mirrored too when ``Dataset_List.csv`` says the style is symmetric."""
     root = Path(root)
     cuts = {r["STYLE_NAME"]: r for r in _read_csv(root / "Frame_Cuts.csv")}
-    symmetric = {r["Style Name"]: r["Symmetric"].strip().lower() == "yes" for r in _read_csv(root / "Dataset_List.csv")}
+    symmetric = symmetric_styles(root / "Dataset_List.csv")
     wanted = set(styles) if styles is not None else None
     specs = []
     for style_dir in sorted(p for p in root.iterdir() if p.is_dir()):

@@ -185,23 +185,15 @@ def fetch(name: str, dest: str | os.PathLike, *, url: str | None = None, timeout
         return _data_root(dest, remote, warn=True)
 
     if archive.exists():
-        got = file_md5(archive, progress=progress)
-        if got != remote.md5.lower():
-            bad = _quarantine(archive)
-            raise FetchError(
-                f"{archive} is not the expected {remote.name} archive: md5 expected {remote.md5}, got {got}. "
-                f"It was moved to {bad} (not trusted; delete it). Re-run to download it again.\n"
-                + _manual_help(name, remote, url, dest), url=url, dest=dest)
+        _check_md5(archive, remote, f"{archive} is not the expected {remote.name} archive", "It was moved to {bad}",
+                   "Re-run to download it again.", help_text=_manual_help(name, remote, url, dest), url=url, dest=dest,
+                   progress=progress)
     else:
         _download(remote, name, url, part, dest, timeout=timeout, progress=progress, attempts=resume_attempts)
-        got = file_md5(part, progress=progress)
-        if got != remote.md5.lower():
-            bad = _quarantine(part)
-            raise FetchError(
-                f"checksum mismatch for {remote.filename} downloaded from {url}: md5 expected {remote.md5}, got {got}. "
-                f"The file was moved to {bad} (not trusted; delete it). Re-run to download it again; if it "
-                f"keeps failing, the server or a proxy is altering the file.\n"
-                + _manual_help(name, remote, url, dest), url=url, dest=dest)
+        _check_md5(part, remote, f"checksum mismatch for {remote.filename} downloaded from {url}",
+                   "The file was moved to {bad}", "Re-run to download it again; if it keeps failing, the server or "
+                   "a proxy is altering the file.", help_text=_manual_help(name, remote, url, dest), url=url,
+                   dest=dest, progress=progress)
         os.replace(part, archive)
 
     if not unpack:
@@ -439,6 +431,17 @@ def _remote(name: str) -> Remote:
     if key not in REMOTES:
         raise FetchError(f"unknown dataset {name!r}; known datasets: {', '.join(sorted(REMOTES))}")
     return REMOTES[key]
+
+
+def _check_md5(path: Path, remote: Remote, problem: str, moved: str, advice: str, *, help_text: str, url: str,
+               dest: Path, progress: bool) -> None:
+    """Raise :class:`FetchError` (``problem``, both checksums, where the file was moved, ``advice``)
+    unless ``path`` has the remote's md5; a bad file is moved aside first (:func:`_quarantine`)."""
+    got = file_md5(path, progress=progress)
+    if got != remote.md5.lower():
+        bad = _quarantine(path)
+        raise FetchError(f"{problem}: md5 expected {remote.md5}, got {got}. {moved.format(bad=bad)} (not trusted; "
+                         f"delete it). {advice}\n" + help_text, url=url, dest=dest)
 
 
 def _quarantine(path: Path) -> Path:

@@ -121,10 +121,8 @@ def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None 
     ``Frame_Cuts.csv``: every gait found unless ``gaits`` names some; each clip mirrored too unless
     ``Dataset_List.csv`` (100STYLE's columns ``Style Name``, ``Symmetric``) says the style is not
     symmetric."""
-    symmetric = {}
-    if (root / "Dataset_List.csv").is_file():
-        symmetric = {r["Style Name"]: r["Symmetric"].strip().lower() == "yes"
-                     for r in datasets._read_csv(root / "Dataset_List.csv")}
+    listed = root / "Dataset_List.csv"
+    symmetric = datasets.symmetric_styles(listed) if listed.is_file() else {}
     specs = []
     for style in styles:
         for f in sorted((root / style).glob(f"{style}_*.bvh")):
