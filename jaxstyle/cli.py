@@ -294,10 +294,10 @@ def _check_positive(args, *names: str) -> None:
             raise CLIError(f"--{name.replace('_', '-')} must be positive, got {value:g}")
 
 
-def _base_settings(args, root: Path, fewshot_styles=None):
+def _base_settings(args, root: Path):
     from jaxstyle import pipeline
 
-    base_styles, held_out = pipeline.split_styles(root, fewshot_styles or args.fewshot_styles, args.styles)
+    base_styles, held_out = pipeline.split_styles(root, args.fewshot_styles, args.styles)
     gaits = tuple(args.gaits) if args.gaits else None
     settings = pipeline.BaseSettings(str(root), base_styles, gaits, hidden=args.hidden, rank=args.rank,
                                      epochs=args.base_epochs, max_seconds=args.max_seconds)
