@@ -35,6 +35,22 @@ def _fps_from_frame_time(frame_time: float) -> float:
     return float(nearest) if nearest > 0 and abs(fps - nearest) <= _FPS_SNAP * nearest else fps
 
 
+def frame_rate(path: str | os.PathLike) -> float:
+    """A BVH file's frames per second from its ``Frame Time:`` line, as :func:`read_bvh` gives it
+    (snapped like there), without reading the frames."""
+    with open(path, "rb") as f:
+        for lineno, line in enumerate(f, 1):
+            if line.strip().lower().startswith(b"frame time:"):
+                try:
+                    frame_time = float(line.split(b":", 1)[1])
+                except ValueError:
+                    raise MotionDataError(f"cannot read the frame time from {line.strip()!r}", path, lineno) from None
+                if not frame_time > 0:
+                    raise MotionDataError(f"Frame Time must be a positive number, got {frame_time}", path, lineno)
+                return _fps_from_frame_time(frame_time)
+    raise MotionDataError("no 'Frame Time:' line", path)
+
+
 def read_bvh(path: str | os.PathLike) -> Motion:
     """Reads a BVH file into a :class:`~jaxstyle.motion.Motion`.
 

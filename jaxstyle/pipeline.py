@@ -30,6 +30,7 @@ from typing import Callable, NamedTuple, Sequence
 import jax
 
 from jaxstyle import datasets, fewshot, pfnn, selection, synthesis
+from jaxstyle.bvh import frame_rate
 from jaxstyle.datasets import ClipSpec
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.motion import Motion
@@ -100,19 +101,10 @@ def split_styles(root: Path, fewshot_styles: Sequence[str] | None = None,
     return tuple(base_styles), tuple(fewshot_styles)
 
 
-def _file_fps(path: str) -> float:
-    """A BVH file's frame rate from its header (without reading the frames)."""
-    with open(path, "rb") as f:
-        for line in f:
-            if line.strip().lower().startswith(b"frame time:"):
-                return 1.0 / float(line.split(b":")[1])
-    raise PipelineError(f"{path}: no 'Frame Time:' line")
-
-
 def _cut(spec: ClipSpec, seconds: float | None) -> ClipSpec:
     if seconds is None:
         return spec
-    stop = spec.start + int(round(seconds * _file_fps(spec.path)))
+    stop = spec.start + int(round(seconds * frame_rate(spec.path)))
     return dataclasses.replace(spec, stop=stop if spec.stop is None else min(spec.stop, stop))
 
 
@@ -162,7 +154,7 @@ def fewshot_specs(root: Path, styles: Sequence[str], seconds: float,
         raise PipelineError(f"few-shot seconds must be positive, got {seconds:g}")
     specs = []
     for spec in clip_specs(root, styles, gaits):
-        fps = _file_fps(spec.path)
+        fps = frame_rate(spec.path)
         n = int(round(10 * fps))
         window = n - len(valid_frames(n, fps))  # frames the trajectory window costs a clip
         stop = spec.start + int(round(seconds * fps)) + window
@@ -186,7 +178,7 @@ def user_clip_specs(clips: Sequence[str | os.PathLike], mirror: bool,
             raise PipelineError(f"clip {path}: no such file")
         start, stop = 0, None
         if seconds is not None:
-            fps = _file_fps(str(path))
+            fps = frame_rate(path)
             start, stop = int(round(seconds[0] * fps)), int(round(seconds[1] * fps))
         copies = (False, True) if mirror else (False,)
         specs += [ClipSpec(str(path), path.stem, start, stop, mirror=m) for m in copies]

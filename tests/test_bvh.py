@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
+from jaxstyle.bvh import frame_rate
 from tests.conftest import all_bvh
 from tests.reference_bvh import reference_fk
 
@@ -17,6 +18,7 @@ def test_every_shared_file_matches_manifest_and_reference_fk(mocap, manifest):
     for path in files:
         rel = path.relative_to(mocap).as_posix()
         motion = js.read_bvh(path)
+        assert frame_rate(path) == motion.fps, rel  # the header alone gives the same rate
         row = manifest.get(rel)
         if row is not None:  # xia/rest.bvh is the one file the manifest does not list in full
             assert motion.num_frames == int(row["frames"]), rel
