@@ -28,11 +28,8 @@ import sys
 import warnings
 from pathlib import Path
 
-import jax
-
 import jaxstyle as js
-from jaxstyle import datasets, paths, selection, synthesis
-from jaxstyle.synthesis import Character
+from jaxstyle import datasets, paths, pipeline, synthesis
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fewshot_sweep  # noqa: E402  (the base model and few-shot sets of the sweep experiment)
@@ -93,15 +90,10 @@ def main() -> None:
                                             cache_dir=fs_config.cache)
     chosen = json.loads((config.sweep / "chosen_rates.json").read_text())
 
-    # one character per style: its adapter, and the rows its start pose and own speed come from
-    b = base.dataset.styles.index(config.base_style)
-    chars = [Character(f"{config.base_style} (base)", config.base_style, jax.tree.map(lambda v: v[b], base.adapters),
-                       base.dataset, config.base_style)]
-    chars += [Character(f"{s} (few-shot, rate {chosen[s]['rate']:g})", s,
-                        selection.load_adapter(config.sweep / "adapters" / s, base.model), shots, s)
-              for s in config.styles]
-    if len(config.styles) >= 2:  # style interpolation: an exact blend of the first two few-shot adapters
-        chars.append(synthesis.blend_character(chars[1], chars[2]))
+    # one character per style (its adapter, and the rows its start pose and own speed come from),
+    # and an exact blend of the first two few-shot adapters (style interpolation)
+    chars = pipeline.characters(base, config.sweep, shots, chosen, base_styles=[config.base_style],
+                                fewshot_sets=config.styles, blend=len(config.styles) >= 2)
     result = synthesis.synthesize(base.params, base.normalisers, chars, base.skeleton, config.out,
                                   path_names=config.paths, seconds=config.seconds, speed=config.speed,
                                   foot_ik=config.foot_ik, mp4=config.mp4, every=2, contact_sheet=True,
