@@ -19,7 +19,7 @@ import warnings
 from pathlib import Path
 
 import jaxstyle as js
-from jaxstyle import datasets
+from jaxstyle.data import datasets
 
 
 def build_all(mocap: Path, cache: Path) -> tuple[datasets.Dataset, datasets.Dataset]:

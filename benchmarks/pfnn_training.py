@@ -25,8 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxstyle import pfnn
-from jaxstyle.train_pfnn import TrainConfig, TrainData, _make_chunk_fn, finetune_adapter, init_state
+from jaxstyle.mason2018.train import TrainConfig, TrainData, _make_chunk_fn, finetune_adapter, init_state
+from jaxstyle.nn import pfnn
 
 
 def timed(fn, repeats: int = 5) -> float:

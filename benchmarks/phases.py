@@ -27,7 +27,7 @@ import jax
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle import local_phase, sinusoid
+from jaxstyle.labels import local_phase, sinusoid
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.reference_sinusoid import fit_window  # noqa: E402  (the test reference, reused)

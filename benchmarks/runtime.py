@@ -30,11 +30,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle import controller, lpn_controller, paths, pfnn, style_models
-from jaxstyle.lpn_features import LPNLayout
-from jaxstyle.normalise import Normaliser
-from jaxstyle.pfnn_features import PFNNLayout
-from jaxstyle.style_models import StyleModelConfig
+from jaxstyle.control import controller, lpn_controller, paths
+from jaxstyle.data.lpn_features import LPNLayout
+from jaxstyle.data.normalise import Normaliser
+from jaxstyle.data.pfnn_features import PFNNLayout
+from jaxstyle.nn import pfnn, style_models
+from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.timing import time_call
 
 PAPER_MS = {"PFNN-CP (2018)": 1.1, "LPN-FiLM (2022)": 4.53}

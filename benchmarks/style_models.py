@@ -20,8 +20,8 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from jaxstyle import pfnn, style_models
-from jaxstyle.style_models import TABLE2, StyleModelConfig
+from jaxstyle.nn import pfnn, style_models
+from jaxstyle.nn.style_models import TABLE2, StyleModelConfig
 from jaxstyle.timing import time_call
 
 

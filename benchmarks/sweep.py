@@ -8,10 +8,10 @@ rows (speed does not depend on the values), with ``--styles`` styles of about ``
 (ragged: +-5%), ``--epochs`` epochs of batch 32 per pair, measured side by side in one run for
 each mode (``paper``: dropout on every layer as in the paper; ``adapter``: dropout on the adapter
 path only, frozen activations cached; ``bf16``: the paper's dropout with the frozen layers'
-products in bfloat16; ``adapter-bf16``: both options; see :class:`jaxstyle.fewshot.SweepConfig`):
+products in bfloat16; ``adapter-bf16``: both options; see :class:`jaxstyle.mason2018.fewshot.SweepConfig`):
 
 (a) wall time of the vmapped sweep over all styles x rates against a Python loop of the same
-    single runs (:func:`jaxstyle.fewshot.finetune_one`, same keys, data order and steps), and
+    single runs (:func:`jaxstyle.mason2018.fewshot.finetune_one`, same keys, data order and steps), and
     their ratio;
 (b) amortised seconds per (style, rate) pair for ``--epochs`` epochs;
 (c) achieved GFLOP/s of the sweep (FLOPs counted from the layer shapes) over that of plain
@@ -33,7 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle import fewshot, pfnn
+from jaxstyle.mason2018 import fewshot
+from jaxstyle.nn import pfnn
 
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
                   "/jax/core/compile/backend_compile_duration")

@@ -16,7 +16,7 @@
    normalised with the base statistics; the mirrored rows are shuffled in with the originals.
 3. One compiled sweep fine-tunes a fresh CP adapter for every (set, rate), then each pair is
    validated on the held-out last cycle and driven closed-loop along a turning path, and a rate
-   is chosen per set (:mod:`jaxstyle.selection`). Written to ``--out``: ``results.csv``,
+   is chosen per set (:mod:`jaxstyle.mason2018.selection`). Written to ``--out``: ``results.csv``,
    ``heatmap.png``, ``chosen_rates.json`` and ``adapters/<set>/`` checkpoints.
 
 Your own style: ``--clip FILE.bvh`` (repeatable) replaces the held-out 100STYLE sets with your
@@ -39,8 +39,9 @@ import jax
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle import datasets, fewshot, pipeline, selection
-from jaxstyle.datasets import ClipSpec
+from jaxstyle.data import datasets
+from jaxstyle.data.datasets import ClipSpec
+from jaxstyle.mason2018 import fewshot, pipeline, selection
 
 BASE_STYLES = ("Angry", "Chicken", "Drunk", "InTheDark", "Neutral")
 FEWSHOT_STYLES = ("Aeroplane", "Elated", "Rushed")
@@ -70,7 +71,7 @@ def fewshot_specs(root: Path, seconds: float) -> list[ClipSpec]:
 
 
 def base_model(mocap: Path, config: Config) -> pipeline.Base:
-    """The base (:func:`jaxstyle.pipeline.train_base`: trained into ``config.base``, or resumed, or
+    """The base (:func:`jaxstyle.mason2018.pipeline.train_base`: trained into ``config.base``, or resumed, or
     loaded) on every gait of the base styles, at the paper's sizes."""
     settings = pipeline.BaseSettings(str(mocap / "100style"), BASE_STYLES, datasets.GAITS_100STYLE,
                                      epochs=config.base_epochs)
@@ -87,9 +88,9 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=Config.epochs, help="fine-tuning epochs per pair")
     parser.add_argument("--base-epochs", type=int, default=Config.base_epochs)
     parser.add_argument("--adapter-dropout-only", action="store_true",
-                        help="the faster mode: dropout on the adapter path only (see jaxstyle.fewshot.SweepConfig)")
+                        help="the faster mode: dropout on the adapter path only (see SweepConfig)")
     parser.add_argument("--matmul-dtype", default=Config.matmul_dtype, choices=["float32", "bfloat16"],
-                        help="precision of the frozen layers' products (see jaxstyle.fewshot.SweepConfig)")
+                        help="precision of the frozen layers' products (see SweepConfig)")
     parser.add_argument("--base", type=Path, default=Config.base, help="base model run folder (trained if empty)")
     parser.add_argument("--out", type=Path, default=Config.out, help="folder for the sweep's report and adapters")
     parser.add_argument("--clip", type=Path, action="append", default=[],

@@ -51,7 +51,7 @@ def main() -> None:
     cfg = Config(root=args.root, fps=args.fps)
     files = sorted(cfg.root.rglob("*.bvh"))
     if not files:
-        raise SystemExit(f"no .bvh files under {cfg.root} (set --root or {js.data.ENV_VAR})")
+        raise SystemExit(f"no .bvh files under {cfg.root} (set --root or {js.data.locate.ENV_VAR})")
     print("| file | frames | fps | seconds | joints | height (file units) | speed (m/s) | facing . travel |")
     print("|---|---|---|---|---|---|---|---|")
     for path in files:

@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle.local_phase import MAX_AMPLITUDE, local_phases
+from jaxstyle.labels.local_phase import MAX_AMPLITUDE, local_phases
 
 
 @dataclasses.dataclass(frozen=True)

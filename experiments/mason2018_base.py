@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle import datasets, pfnn
-from jaxstyle.train_pfnn import TrainConfig, data_from_dataset, mean_predictor_losses, train, validation_losses
+from jaxstyle.data import datasets
+from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, mean_predictor_losses, train, validation_losses
+from jaxstyle.nn import pfnn
 
 
 @dataclasses.dataclass(frozen=True)

@@ -30,8 +30,9 @@ import jax
 import jax.numpy as jnp
 
 import jaxstyle as js
-from jaxstyle import datasets, pfnn
-from jaxstyle.train_pfnn import TrainConfig, data_from_dataset, finetune_adapter
+from jaxstyle.data import datasets
+from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, finetune_adapter
+from jaxstyle.nn import pfnn
 
 PAPER = {"full": ("4.01 / 50.1", "99", "0.0013"), "diagonal": ("0.016 / 0.20", "44", "0.0010"),
          "cp": ("0.126 / 0.131", "50", "0.0011")}

@@ -8,7 +8,7 @@ held-out styles (Mason, Starke & Komura 2022, sections 4.3, 5.2.2 and 5.3).
    contiguous 80/10/10 splits per clip; new styles: their own dataset, normalised with the base's
    statistics (both papers reuse the base normalisation).
 2. Each model of ``--models`` (any of Table 2's, the LPN/MANN ones on this data) is trained with
-   style-balanced batches (``jaxstyle.train_lpn.train``; resumes from ``--out/<model>``).
+   style-balanced batches (``jaxstyle.mason2022.train.train``; resumes from ``--out/<model>``).
 3. Test: normalised MSE and bone-length loss (metres) per style on the test rows, dropout off.
 4. New styles: the FiLM generator alone is fine-tuned for every (new style, dropout rate) pair in
    one compiled sweep; the rate with the lowest validation loss is kept; test loss before/after.
@@ -29,8 +29,11 @@ from pathlib import Path
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle import datasets, film, train_lpn, viz
-from jaxstyle.style_models import StyleModelConfig
+from jaxstyle.data import datasets
+from jaxstyle.mason2022 import train as train_lpn
+from jaxstyle.nn import film_generator as film
+from jaxstyle.nn.style_models import StyleModelConfig
+from jaxstyle.output import viz
 
 
 @dataclasses.dataclass(frozen=True)

@@ -4,7 +4,7 @@ style models, at the paper's sizes (95 styles), beside the paper's numbers.
     python experiments/mason2022_table2.py [--calls 200] [--runs 5] [--no-runtime]
 
 A.S.N. (animation synthesis network), S.M.N. (style modulation network) and P.S.R. (parameters
-per style at runtime) come from the formulas of ``jaxstyle.style_models`` (tested to equal the
+per style at runtime) come from the formulas of ``jaxstyle.nn.style_models`` (tested to equal the
 sizes of the initialised parameter trees). Runtime: one frame at batch 1 on this machine's
 default JAX device, FiLM parameters precomputed (the network call only, not the controller),
 as the mean and standard deviation over ``--runs`` runs of the average over ``--calls`` calls,
@@ -21,8 +21,9 @@ import platform
 import jax
 import jax.numpy as jnp
 
-from jaxstyle import film, style_models
-from jaxstyle.style_models import TABLE2, StyleModelConfig
+from jaxstyle.nn import film_generator as film
+from jaxstyle.nn import style_models
+from jaxstyle.nn.style_models import TABLE2, StyleModelConfig
 from jaxstyle.timing import time_call
 
 # the paper's Table 2: A.S.N., S.M.N., P.S.R., runtime mean and std (ms)
@@ -88,7 +89,7 @@ def main() -> None:
               f"conv {g.filters}->{g.filters} width {g.width}, maxpool 2, dense {g.pooled_frames}*{g.filters}->"
               f"{g.hidden}, dense {g.hidden}->{g.film_size}, with biases) has {film.generator_size(g):,} parameters; "
               "no variant searched (padding, pooling, widths, biases) gives the paper's 35,668,530 "
-              "(see jaxstyle/film.py).")
+              "(see jaxstyle/nn/film_generator.py).")
     unexplained = [m for m in mismatches if not (m[1] == "S.M.N." and TABLE2[m[0]][1] == "film")]
     if unexplained:
         raise SystemExit(f"unexpected parameter-count mismatches: {unexplained}")

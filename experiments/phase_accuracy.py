@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle import contacts, phase
+from jaxstyle.labels import contacts, phase
 
 
 @dataclasses.dataclass(frozen=True)

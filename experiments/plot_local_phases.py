@@ -13,8 +13,8 @@ import dataclasses
 from pathlib import Path
 
 import jaxstyle as js
-from jaxstyle.local_phase import local_phases
-from jaxstyle.viz import plot_local_phases
+from jaxstyle.labels.local_phase import local_phases
+from jaxstyle.output.viz import plot_local_phases
 
 
 @dataclasses.dataclass(frozen=True)

@@ -10,10 +10,10 @@ of real motion of each style (Mason et al. 2018 section 7.1's runtime; the 2022 
 It builds on ``experiments/fewshot_sweep.py``: the base PFNN (trained into ``runs/fewshot/base``
 if it is not there yet, about 6 min on 2 CPU cores) and the few-shot adapters it chose
 (``runs/fewshot/sweep/adapters/<set>``; run that script first). Every (style, path) character is
-generated in ONE batched, jitted ``lax.scan`` (``jaxstyle.controller.rollout_batch``); each
+generated in ONE batched, jitted ``lax.scan`` (``jaxstyle.control.controller.rollout_batch``); each
 starts from a real pose of its own style chosen to match the requested speed. The base style is
 the base network with that training style's adapter; a fourth character walks a 50/50 blend of
-the two few-shot styles (``jaxstyle.pfnn.blend_adapters``, exact for CP adapters).
+the two few-shot styles (``jaxstyle.nn.pfnn.blend_adapters``, exact for CP adapters).
 
 Written to ``--out``: ``<path>.gif`` (styles side by side), ``bvh/<style>_<path>.bvh`` and
 ``.npz``, ``contact_sheet.png`` (the first path), ``quality.csv`` and ``results.md``.
@@ -29,7 +29,10 @@ import warnings
 from pathlib import Path
 
 import jaxstyle as js
-from jaxstyle import datasets, paths, pipeline, synthesis
+from jaxstyle.control import paths
+from jaxstyle.data import datasets
+from jaxstyle.mason2018 import pipeline
+from jaxstyle.output import synthesis
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fewshot_sweep  # noqa: E402  (the base model and few-shot sets of the sweep experiment)

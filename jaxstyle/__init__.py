@@ -1,160 +1,103 @@
 """jaxstyle: style-controllable character locomotion in JAX.
 
 Reimplements Mason et al. 2018 (few-shot PFNN residual adapters) and Mason, Starke & Komura 2022
-(local motion phases with FiLM). This module re-exports the public API.
+(local motion phases with FiLM). The packages, from the bottom layer up (pyproject.toml holds the
+contract that import-linter checks):
+
+- motion: the Motion clip, BVH, quaternions, kinematics, transforms, skeleton roles;
+- labels: foot contacts, global phase, local phases;
+- data: locating and fetching capture, procedural clips, both papers' features, datasets;
+- nn: the networks of both papers as pure functions; train: checkpoints and run logs;
+- control: paths and the controllers; output: export, foot IK, previews, metrics, synthesis;
+- mason2018 and mason2022: each paper's workflows; cli: the jaxstyle command.
+
+import jaxstyle is light: the names below load from their modules on first use.
 """
 
-from jaxstyle import (
-    controller,
-    export,
-    fetch,
-    fewshot,
-    film,
-    footik,
-    lpn,
-    lpn_controller,
-    metrics,
-    paths,
-    pfnn,
-    pipeline,
-    preview,
-    procedural,
-    quat,
-    selection,
-    style_models,
-    synthesis,
-    train_lpn,
-)
-from jaxstyle.batching import balanced_batches, contiguous_split
-from jaxstyle.bvh import format_bvh, parse_bvh, read_bvh, write_bvh
-from jaxstyle.character_frame import CharacterFrames, character_frames
-from jaxstyle.contacts import FootContacts, FootJoints, estimate_units_per_meter, foot_contacts, joint_contacts
-from jaxstyle.controller import rollout, rollout_batch, turning_path
-from jaxstyle.data import default_mocap_dir, mocap_dir, read_phase_labels
-from jaxstyle.errors import JaxstyleError, MotionDataError
-from jaxstyle.export import rollout_motion, save_rollout
-from jaxstyle.fewshot import SweepConfig, finetune_sweep, sweep_batches
-from jaxstyle.film import FiLMConfig
-from jaxstyle.kinematics import (
-    bone_lengths,
-    facing_directions,
-    forward_kinematics,
-    global_positions,
-    global_transforms,
-    motion_from_global,
-    rest_positions,
-    root_trajectory,
-    skeleton_height,
-)
-from jaxstyle.local_phase import LocalPhases, local_phases
-from jaxstyle.lpn_features import LPNFeatures, LPNLayout, decode_lpn, encode_lpn
-from jaxstyle.metrics import MotionQuality, motion_quality, reference_quality
-from jaxstyle.motion import Motion
-from jaxstyle.normalise import Normaliser, fit_normaliser
-from jaxstyle.paths import PathSignal
-from jaxstyle.pfnn_features import PFNNLayout, decode_pfnn, encode_pfnn
-from jaxstyle.phase import circular_distance, footsteps, global_phase
-from jaxstyle.selection import RolloutCheck, SweepResult, fewshot_sweep, load_adapter, write_report
-from jaxstyle.sinusoid import SinusoidFit, fit_sinusoids, fit_windows
-from jaxstyle.skeleton import find_feet_and_hands, find_hips_and_shoulders, mirror_pairs
-from jaxstyle.style_models import StyleModelConfig
-from jaxstyle.train_lpn import FiLMFinetuneConfig, LPNTrainConfig
-from jaxstyle.transform import mirror, resample, rotate, scale, set_up_axis
+from jaxstyle._lazy import lazy_module
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "CharacterFrames",
-    "FiLMConfig",
-    "FiLMFinetuneConfig",
-    "FootContacts",
-    "FootJoints",
-    "JaxstyleError",
-    "LPNFeatures",
-    "LPNLayout",
-    "LPNTrainConfig",
-    "LocalPhases",
-    "Motion",
-    "MotionDataError",
-    "MotionQuality",
-    "Normaliser",
-    "PFNNLayout",
-    "PathSignal",
-    "RolloutCheck",
-    "SinusoidFit",
-    "StyleModelConfig",
-    "SweepConfig",
-    "SweepResult",
-    "balanced_batches",
-    "bone_lengths",
-    "character_frames",
-    "circular_distance",
-    "contiguous_split",
-    "controller",
-    "decode_lpn",
-    "decode_pfnn",
-    "default_mocap_dir",
-    "encode_lpn",
-    "encode_pfnn",
-    "estimate_units_per_meter",
-    "export",
-    "fetch",
-    "facing_directions",
-    "fewshot",
-    "fewshot_sweep",
-    "film",
-    "find_feet_and_hands",
-    "find_hips_and_shoulders",
-    "finetune_sweep",
-    "fit_normaliser",
-    "fit_sinusoids",
-    "fit_windows",
-    "foot_contacts",
-    "footik",
-    "footsteps",
-    "format_bvh",
-    "forward_kinematics",
-    "global_phase",
-    "global_positions",
-    "global_transforms",
-    "joint_contacts",
-    "load_adapter",
-    "local_phases",
-    "lpn",
-    "lpn_controller",
-    "metrics",
-    "mirror",
-    "mirror_pairs",
-    "mocap_dir",
-    "motion_from_global",
-    "motion_quality",
-    "parse_bvh",
-    "paths",
-    "pfnn",
-    "pipeline",
-    "preview",
-    "procedural",
-    "quat",
-    "read_bvh",
-    "read_phase_labels",
-    "reference_quality",
-    "resample",
-    "rest_positions",
-    "rollout",
-    "rollout_batch",
-    "rollout_motion",
-    "root_trajectory",
-    "rotate",
-    "save_rollout",
-    "scale",
-    "selection",
-    "set_up_axis",
-    "skeleton_height",
-    "style_models",
-    "sweep_batches",
-    "synthesis",
-    "train_lpn",
-    "turning_path",
-    "write_bvh",
-    "write_report",
-]
+_SUBPACKAGES = ["cli", "control", "data", "labels", "mason2018", "mason2022", "motion", "nn", "output", "train",
+                "errors", "timing"]
+
+_NAMES = {
+    "CharacterFrames": "motion.character_frame",
+    "FiLMConfig": "nn.film_generator",
+    "FiLMFinetuneConfig": "mason2022.train",
+    "FootContacts": "labels.contacts",
+    "FootJoints": "labels.contacts",
+    "JaxstyleError": "errors",
+    "LPNFeatures": "data.lpn_features",
+    "LPNLayout": "data.lpn_features",
+    "LPNTrainConfig": "mason2022.train",
+    "LocalPhases": "labels.local_phase",
+    "Motion": "motion.clip",
+    "MotionDataError": "errors",
+    "MotionQuality": "output.metrics",
+    "Normaliser": "data.normalise",
+    "PFNNLayout": "data.pfnn_features",
+    "PathSignal": "control.paths",
+    "RolloutCheck": "mason2018.selection",
+    "SinusoidFit": "labels.sinusoid",
+    "StyleModelConfig": "nn.style_models",
+    "SweepConfig": "mason2018.fewshot",
+    "SweepResult": "mason2018.selection",
+    "balanced_batches": "data.batching",
+    "bone_lengths": "motion.kinematics",
+    "character_frames": "motion.character_frame",
+    "circular_distance": "labels.phase",
+    "contiguous_split": "data.batching",
+    "decode_lpn": "data.lpn_features",
+    "decode_pfnn": "data.pfnn_features",
+    "default_mocap_dir": "data.locate",
+    "encode_lpn": "data.lpn_features",
+    "encode_pfnn": "data.pfnn_features",
+    "estimate_units_per_meter": "labels.contacts",
+    "facing_directions": "motion.kinematics",
+    "fewshot_sweep": "mason2018.selection",
+    "find_feet_and_hands": "motion.skeleton",
+    "find_hips_and_shoulders": "motion.skeleton",
+    "finetune_sweep": "mason2018.fewshot",
+    "fit_normaliser": "data.normalise",
+    "fit_sinusoids": "labels.sinusoid",
+    "fit_windows": "labels.sinusoid",
+    "foot_contacts": "labels.contacts",
+    "footsteps": "labels.phase",
+    "format_bvh": "motion.bvh",
+    "forward_kinematics": "motion.kinematics",
+    "global_phase": "labels.phase",
+    "global_positions": "motion.kinematics",
+    "global_transforms": "motion.kinematics",
+    "joint_contacts": "labels.contacts",
+    "load_adapter": "mason2018.selection",
+    "local_phases": "labels.local_phase",
+    "mirror": "motion.transform",
+    "mirror_pairs": "motion.skeleton",
+    "mocap_dir": "data.locate",
+    "motion_from_global": "motion.kinematics",
+    "motion_quality": "output.metrics",
+    "parse_bvh": "motion.bvh",
+    "read_bvh": "motion.bvh",
+    "read_phase_labels": "labels.phase",
+    "reference_quality": "output.metrics",
+    "resample": "motion.transform",
+    "rest_positions": "motion.kinematics",
+    "rollout": "control.controller",
+    "rollout_batch": "control.controller",
+    "rollout_motion": "output.export",
+    "root_trajectory": "motion.kinematics",
+    "rotate": "motion.transform",
+    "save_rollout": "output.export",
+    "scale": "motion.transform",
+    "set_up_axis": "motion.transform",
+    "skeleton_height": "motion.kinematics",
+    "sweep_batches": "mason2018.fewshot",
+    "turning_path": "control.controller",
+    "write_bvh": "motion.bvh",
+    "write_report": "mason2018.selection",
+}
+
+__all__ = sorted(_NAMES)
+
+__getattr__, __dir__ = lazy_module(__name__, _SUBPACKAGES, _NAMES)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from jaxstyle.data import ENV_VAR, default_mocap_dir
+from jaxstyle.data.locate import ENV_VAR, default_mocap_dir
 
 
 def _mocap_or_skip() -> Path:

@@ -1,6 +1,6 @@
 """Independent reference for the sinusoid fit: scipy.optimize.curve_fit, one window at a time.
 
-Shares no code with jaxstyle.sinusoid. Used by the tests (agreement) and by
+Shares no code with jaxstyle.labels.sinusoid. Used by the tests (agreement) and by
 benchmarks/phases.py (the loop the vectorised fit is compared against).
 """
 

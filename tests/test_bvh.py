@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle.bvh import frame_rate
+from jaxstyle.motion.bvh import frame_rate
 from tests.conftest import all_bvh
 from tests.reference_bvh import reference_fk
 
@@ -156,9 +156,10 @@ def test_generated_motion_without_channels_gets_default_layout():
     motion = js.parse_bvh(text)
     bare = motion.replace(channels=((),) * motion.num_joints)
     back = js.parse_bvh(js.format_bvh(bare))
-    assert back.channels[0] == js.bvh.DEFAULT_ROOT_CHANNELS and back.channels[2] == js.bvh.DEFAULT_JOINT_CHANNELS
+    assert back.channels[0] == js.motion.bvh.DEFAULT_ROOT_CHANNELS
+    assert back.channels[2] == js.motion.bvh.DEFAULT_JOINT_CHANNELS
     # Spine translates, so it gets position channels too.
-    assert back.channels[1] == js.bvh.DEFAULT_ROOT_CHANNELS
+    assert back.channels[1] == js.motion.bvh.DEFAULT_ROOT_CHANNELS
     np.testing.assert_allclose(js.global_positions(back), js.global_positions(motion), atol=1e-5)
 
 
@@ -174,13 +175,13 @@ def test_writer_refuses_to_drop_an_unwritable_translation():
     text, _ = _general_text(np.random.default_rng(4))
     motion = js.parse_bvh(text)
     # Prop animates only Yposition; rotating the whole motion moves it along X and Z too.
-    turned = js.rotate(motion, js.quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.5))
+    turned = js.rotate(motion, js.motion.quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.5))
     channels = list(turned.channels)
     channels[2] = ("Zrotation", "Xrotation", "Yrotation")
     channels[3] = ("Yrotation", "Xrotation", "Zrotation")
     channels[5] = ("Yposition", "Xrotation", "Yrotation", "Zrotation")
     with pytest.raises(js.MotionDataError, match="'Prop' moves along Xposition Zposition"):
         js.format_bvh(turned, tuple(channels))
-    channels[5] = js.bvh.DEFAULT_ROOT_CHANNELS
+    channels[5] = js.motion.bvh.DEFAULT_ROOT_CHANNELS
     back = js.parse_bvh(js.format_bvh(turned, tuple(channels)))
     np.testing.assert_allclose(js.global_positions(back), js.global_positions(turned), atol=1e-5)

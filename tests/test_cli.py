@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle import cli, datasets
+from jaxstyle import cli
+from jaxstyle.data import datasets
 
 # the tiny few-shot clips hold fewer rows than a cycle's worth for validation; selection says so
 pytestmark = pytest.mark.filterwarnings("ignore:style .* the last 1 cycle:UserWarning")

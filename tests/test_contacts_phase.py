@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle import contacts, phase
-from jaxstyle.data import read_phase_labels
+from jaxstyle.labels import contacts, phase
+from jaxstyle.labels.phase import read_phase_labels
 
 FLAT = ("NewCaptures01_000", "NewCaptures10_000", "NewCaptures11_000")
 STAIRS = ("WalkingUpSteps09_000",)

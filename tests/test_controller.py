@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle import controller, kinematics, metrics, pfnn
-from jaxstyle.character_frame import CharacterFrames, rotate_yaw, to_local
-from jaxstyle.datasets import ClipSpec, load_clip
-from jaxstyle.normalise import Normaliser
+from jaxstyle.control import controller
+from jaxstyle.data.datasets import ClipSpec, load_clip
+from jaxstyle.data.normalise import Normaliser
+from jaxstyle.motion import kinematics
+from jaxstyle.motion.character_frame import CharacterFrames, rotate_yaw, to_local
+from jaxstyle.nn import pfnn
+from jaxstyle.output import metrics
 
 
 def test_path_controls_of_a_straight_walk():

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle import datasets as D
-from jaxstyle.batching import balanced_batches
-from jaxstyle.normalise import fit_normaliser
+from jaxstyle.data import datasets as D
+from jaxstyle.data.batching import balanced_batches
+from jaxstyle.data.normalise import fit_normaliser
 
 
 def test_specs_100style_cuts_and_mirrors_symmetric_styles(mocap, tmp_path):

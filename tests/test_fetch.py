@@ -1,4 +1,4 @@
-"""jaxstyle.fetch against a local HTTP server in a thread: download, resume, checksums, unpacking, offline errors.
+"""jaxstyle.data.fetch against a local HTTP server in a thread: download, resume, checksums, unpacking, offline errors.
 
 No internet: the archives are tiny zips made here, served from memory, and the 100STYLE entry of REMOTES is
 patched with their md5.
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from jaxstyle import fetch as F
+from jaxstyle.data import fetch as F
 from jaxstyle.errors import JaxstyleError
 
 BVH = "HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0 0\n}\nMOTION\nFrames: 1\nFrame Time: 0.0166667\n" + "0.0 " * 5000 + "\n"

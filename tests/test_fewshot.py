@@ -9,7 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxstyle import fewshot, pfnn
+from jaxstyle.mason2018 import fewshot
+from jaxstyle.nn import pfnn
 
 SMALL = pfnn.PFNNConfig(input_size=6, hidden_size=16, output_size=5, rank=4)
 
@@ -115,7 +116,8 @@ def test_sharded_grid_matches_one_device():
         sys.path.insert(0, {os.getcwd()!r})
         assert jax.device_count() == 2
         from tests.test_fewshot import _data, SMALL
-        from jaxstyle import fewshot, pfnn
+        from jaxstyle.mason2018 import fewshot
+        from jaxstyle.nn import pfnn
         x, y, phase, rows = _data()
         config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.5))
         params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)

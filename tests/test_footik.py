@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle import footik, kinematics, quat
-from jaxstyle.contacts import runs
-from jaxstyle.motion import Motion
+from jaxstyle.labels.contacts import runs
+from jaxstyle.motion import Motion, kinematics, quat
+from jaxstyle.output import footik
 from tests.synthetic_legs import NAMES, OFFSETS, PARENTS
 
 FPS = 60.0

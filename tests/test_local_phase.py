@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle import local_phase as lp
-from jaxstyle import sinusoid
+from jaxstyle.labels import local_phase as lp
+from jaxstyle.labels import sinusoid
 
 from .conftest import all_bvh
 from .reference_sinusoid import fit_window
@@ -190,7 +190,7 @@ def test_auto_uses_contact_free_source_for_a_lifted_foot(mocap):
     rot = motion.rotations.copy()
     knee = motion.joint_index("LeftKnee")
     # bend the left knee 90 degrees all along: the left foot never touches down (a hop on the right)
-    rot[:, knee] = js.quat.mul(rot[:, knee], js.quat.from_axis_angle(np.array([1.0, 0, 0]), np.pi / 2))
+    rot[:, knee] = js.motion.quat.mul(rot[:, knee], js.motion.quat.from_axis_angle(np.array([1.0, 0, 0]), np.pi / 2))
     hop = motion.replace(rotations=rot)
     res = lp.local_phases(hop, foot_source="auto")
     assert res.sources[2:] == ("contact", "free")

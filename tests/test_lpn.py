@@ -11,8 +11,10 @@ import pytest
 from jax.test_util import check_grads
 
 import jaxstyle as js
-from jaxstyle import film, lpn, style_models, train_lpn
-from jaxstyle.style_models import StyleModelConfig
+from jaxstyle.mason2022 import train as train_lpn
+from jaxstyle.nn import film_generator as film
+from jaxstyle.nn import lpn, style_models
+from jaxstyle.nn.style_models import StyleModelConfig
 
 KEY = jax.random.PRNGKey(0)
 SMALL_FILM = film.FiLMConfig(clip_frames=16, clip_features=6, filters=4, width=5, hidden=8, film_size=32)
@@ -343,7 +345,7 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
 
 @pytest.fixture(scope="module")
 def real_data(mocap, tmp_path_factory):
-    from jaxstyle import datasets
+    from jaxstyle.data import datasets
 
     specs = [s for s in datasets.specs_100style(mocap / "100style", styles=["Neutral", "Rushed"]) if s.gait == "FW"]
     ds = datasets.build_lpn_dataset(specs, cache_dir=tmp_path_factory.mktemp("cache"))
@@ -352,7 +354,7 @@ def real_data(mocap, tmp_path_factory):
 
 
 def test_style_data_positions_are_the_skeletons_bones_in_metres(real_data):
-    from jaxstyle.kinematics import bone_lengths
+    from jaxstyle.motion.kinematics import bone_lengths
 
     ds, skeleton = real_data
     data = train_lpn.style_data(ds, skeleton)

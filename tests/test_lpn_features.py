@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import jaxstyle as js
-from jaxstyle import character_frame as cf
-from jaxstyle import lpn_features as lf
+from jaxstyle.data import lpn_features as lf
+from jaxstyle.motion import character_frame as cf
 
 CLIPS = ("100style/Angry/Angry_FW.bvh", "100style/Chicken/Chicken_BR.bvh", "100style/Neutral/Neutral_ID.bvh")
 

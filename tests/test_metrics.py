@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle import metrics
 from jaxstyle.motion import Motion
+from jaxstyle.output import metrics
 from tests.synthetic_legs import NAMES, OFFSETS, PARENTS
 
 FPS = 60.0

@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxstyle.batching import balanced_batches, contiguous_split
-from jaxstyle.normalise import Normaliser, fit_normaliser
+from jaxstyle.data.batching import balanced_batches, contiguous_split
+from jaxstyle.data.normalise import Normaliser, fit_normaliser
 
 
 def test_normaliser_pools_styles_and_shares_group_std(tmp_path):

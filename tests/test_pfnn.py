@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxstyle import pfnn
+from jaxstyle.nn import pfnn
 
 SMALL = dict(input_size=6, hidden_size=8, output_size=5, rank=3)
 

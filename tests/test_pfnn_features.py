@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import jaxstyle as js
-from jaxstyle import character_frame as cf
-from jaxstyle import pfnn_features as pf
+from jaxstyle.data import pfnn_features as pf
+from jaxstyle.motion import character_frame as cf
 
 CLIPS = ("xia/proud_01_000.bvh", "xia/strutting_13_000.bvh", "pfnn_excerpt/NewCaptures01_000.bvh",
          "pfnn_excerpt/WalkingUpSteps09_000_mirror.bvh")

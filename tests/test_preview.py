@@ -10,7 +10,7 @@ from matplotlib.animation import writers
 from matplotlib.colors import to_rgb
 from PIL import Image
 
-from jaxstyle import preview
+from jaxstyle.output import preview
 
 # hips, left knee, left foot, right knee, right foot; units are metres
 PARENTS = np.array([-1, 0, 1, 0, 3])

@@ -1,4 +1,4 @@
-"""The procedural locomotion generator (jaxstyle.procedural): geometry, exact labels, styles,
+"""The procedural locomotion generator (jaxstyle.data.procedural): geometry, exact labels, styles,
 the dataset folder it writes, and the automatic labellers checked against its exact labels.
 
 No motion capture needed; clips are 8-10 s so the whole file runs in seconds.
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle import procedural as P
-from jaxstyle.contacts import runs
-from jaxstyle.datasets import specs_100style
-from jaxstyle.phase import circular_distance
+from jaxstyle.data import procedural as P
+from jaxstyle.data.datasets import specs_100style
+from jaxstyle.labels.contacts import runs
+from jaxstyle.labels.phase import circular_distance
 
 SECONDS = 10.0
 CLIPS = [(s, g) for s in P.STYLES for g in P.GAITS]

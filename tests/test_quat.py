@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from jaxstyle import quat
+from jaxstyle.motion import quat
 
 TAIT_BRYAN = ["".join(p) for p in itertools.permutations("xyz")]
 

@@ -10,8 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxstyle import datasets, fewshot, pfnn, selection
-from jaxstyle.datasets import ClipSpec
+from jaxstyle.data import datasets
+from jaxstyle.data.datasets import ClipSpec
+from jaxstyle.mason2018 import fewshot, selection
+from jaxstyle.nn import pfnn
 from tests.test_fewshot import SMALL, _data
 
 

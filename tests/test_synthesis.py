@@ -10,11 +10,14 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle import controller, film, kinematics, lpn_controller, paths, pfnn, style_models
-from jaxstyle.character_frame import CharacterFrames, rotate_yaw, to_local
-from jaxstyle.datasets import ClipSpec, load_clip
-from jaxstyle.lpn_features import bone_points, end_effector_columns
-from jaxstyle.normalise import Normaliser
+from jaxstyle.control import controller, lpn_controller, paths
+from jaxstyle.data.datasets import ClipSpec, load_clip
+from jaxstyle.data.lpn_features import bone_points, end_effector_columns
+from jaxstyle.data.normalise import Normaliser
+from jaxstyle.motion import kinematics
+from jaxstyle.motion.character_frame import CharacterFrames, rotate_yaw, to_local
+from jaxstyle.nn import film_generator as film
+from jaxstyle.nn import pfnn, style_models
 
 # --- paths --------------------------------------------------------------------------------------
 
@@ -275,8 +278,8 @@ def trained_pfnn(mocap):
     (walk, run, turns, idle, mirrored): about 4,300 rows, under a minute on 2 CPU cores."""
     import warnings
 
-    from jaxstyle import datasets
-    from jaxstyle.train_pfnn import TrainConfig, data_from_dataset, train
+    from jaxstyle.data import datasets
+    from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, train
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # short clips are skipped with a warning
@@ -308,21 +311,22 @@ def test_four_characters_follow_their_paths(trained_pfnn, tmp_path):
     assert out.positions.shape == (4, 300, skeleton.num_joints, 3)
     assert np.isfinite(np.asarray(out.outputs)).all()
     for c in range(len(signals)):
-        bone = js.metrics.bone_length_errors(np.asarray(out.positions[c]), skeleton)
+        bone = js.output.metrics.bone_length_errors(np.asarray(out.positions[c]), skeleton)
         assert bone.mean() < 0.05, (c, bone.mean())
-    straight = js.metrics.path_error(np.asarray(out.origin[0]), signals[0].positions, units_per_meter=upm)
+    straight = js.output.metrics.path_error(np.asarray(out.origin[0]), signals[0].positions, units_per_meter=upm)
     assert straight[-1] < 0.5, straight[-1]
     # the walker really walked: at least 4 of the 5 m requested
     assert np.linalg.norm(np.asarray(out.origin[0, -1])) / upm > 4.0
 
     # export: the BVH reads back with the skeleton's bone lengths and the rollout's root path
-    from jaxstyle import export
+    from jaxstyle.output import export
 
     one = jax.tree.map(lambda v: v[1], out)
     written = export.save_rollout(tmp_path / "circle", one, skeleton, foot_ik=True)
     back = js.read_bvh(written["bvh"])
     assert back.num_frames == 300 and back.names == skeleton.names
-    np.testing.assert_allclose(js.metrics.bone_length_errors(js.global_positions(back), skeleton), 0.0, atol=1e-4)
+    errors = js.output.metrics.bone_length_errors(js.global_positions(back), skeleton)
+    np.testing.assert_allclose(errors, 0.0, atol=1e-4)
     root = js.global_positions(back)[:, 0]
     np.testing.assert_allclose(root[:, [0, 2]], np.asarray(one.positions)[:, 0, [0, 2]], atol=0.5)  # cm; BVH precision
     arrays = np.load(written["npz"])

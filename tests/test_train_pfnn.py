@@ -12,8 +12,8 @@ import jax
 import numpy as np
 import pytest
 
-from jaxstyle import pfnn
-from jaxstyle.train_pfnn import TrainConfig, TrainData, mean_predictor_losses, train, validation_losses
+from jaxstyle.mason2018.train import TrainConfig, TrainData, mean_predictor_losses, train, validation_losses
+from jaxstyle.nn import pfnn
 
 SMALL = pfnn.PFNNConfig(input_size=6, hidden_size=16, output_size=5, rank=4)
 
@@ -68,7 +68,7 @@ def test_data_parallel_matches_one_device(tmp_path):
         sys.path.insert(0, {str(os.getcwd())!r})
         assert jax.device_count() == 2, jax.devices()
         from tests.test_train_pfnn import synthetic, CONFIG
-        from jaxstyle.train_pfnn import train
+        from jaxstyle.mason2018.train import train
         data = synthetic()
         one = train(data, CONFIG, progress=False)
         two = train(data, CONFIG, progress=False, data_parallel=True)
@@ -86,8 +86,8 @@ def test_base_model_on_the_shared_sample_learns(mocap):
     well below predicting the mean (experiments/mason2018_base.py runs the long version)."""
     import warnings
 
-    from jaxstyle import datasets
-    from jaxstyle.train_pfnn import data_from_dataset
+    from jaxstyle.data import datasets
+    from jaxstyle.mason2018.train import data_from_dataset
 
     specs = datasets.specs_xia(mocap / "xia") + datasets.specs_pfnn(mocap / "pfnn_excerpt")
     with warnings.catch_warnings():
@@ -102,7 +102,7 @@ def test_base_model_on_the_shared_sample_learns(mocap):
 
 
 def test_finetune_improves_a_new_adapter_with_the_base_frozen():
-    from jaxstyle.train_pfnn import finetune_adapter
+    from jaxstyle.mason2018.train import finetune_adapter
 
     data = synthetic(1)
     state = train(data, CONFIG, progress=False)

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 import jaxstyle as js
-from jaxstyle import quat
+from jaxstyle.motion import quat
 from tests.conftest import all_bvh
 
 
@@ -54,10 +54,10 @@ def test_scale_scales_positions(walk):
 @pytest.mark.parametrize("up", ["z", "-z", "x", "-y"])
 def test_set_up_axis_recovers_y_up(walk, up):
     # Build a clip whose up axis is `up` by rotating +Y onto it, then convert it back.
-    to_other = quat.between(np.array([0.0, 1.0, 0.0]), js.transform._axis_vector(up))
+    to_other = quat.between(np.array([0.0, 1.0, 0.0]), js.motion.transform._axis_vector(up))
     other = js.rotate(walk, to_other)
     pos = js.global_positions(other)
-    ax = js.transform._axis_vector(up)
+    ax = js.motion.transform._axis_vector(up)
     assert np.all(pos @ ax > -1.0)  # the character now stands along `up`
     back = js.set_up_axis(other, up)
     np.testing.assert_allclose(js.global_positions(back), js.global_positions(walk), atol=1e-9)

@@ -1,0 +1,430 @@
+"""Datasets of training rows for both papers, built from folders of BVH files and cached.
+
+A dataset is built from a list of :class:`ClipSpec` (file, style, frame range, mirrored or not),
+which the ``specs_*`` functions make for the layouts in use:
+
+* :func:`specs_from_folder`: any folder, the style of each file from a mapping or a regular
+  expression with a ``style`` group;
+* :func:`specs_100style`: ``<root>/<Style>/<Style>_<GAIT>.bvh`` with ``Frame_Cuts.csv`` (start and
+  stop frame of every style x gait; a stop beyond the file, as in the trimmed Neutral takes of
+  the shared sample, is clipped to the file) and ``Dataset_List.csv`` (only styles flagged
+  symmetric are also mirrored);
+* :func:`specs_xia`: ``<style>_<content>_000.bvh``;
+* :func:`specs_pfnn`: PFNN captures with their ``.phase`` labels (their ``_mirror`` files are
+  separate captures, so nothing is mirrored again).
+
+:func:`build_pfnn_dataset` and :func:`build_lpn_dataset` encode every clip (2018 and 2022 layouts)
+and keep, per row, its style, clip, frame and split (contiguous blocks per clip; a clip and its
+mirror share them), with normalisation statistics over the training rows of all styles. Results
+are cached under ``cache_dir`` in a file
+named by a hash of the input files' contents, the specs and the settings: a changed file or
+setting builds anew, an unchanged one loads in well under a second.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import json
+import os
+import re
+import warnings
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from jaxstyle.data.batching import SPLITS, contiguous_split
+from jaxstyle.data.lpn_features import LPNLayout, encode_lpn
+from jaxstyle.data.normalise import Normaliser, fit_normaliser
+from jaxstyle.data.pfnn_features import PFNNLayout, encode_pfnn, valid_frames
+from jaxstyle.errors import MotionDataError
+from jaxstyle.labels.phase import global_phase, read_phase_labels
+from jaxstyle.motion import Motion, transform
+from jaxstyle.motion.bvh import read_bvh
+
+CACHE_VERSION = 3
+GAITS_100STYLE = ("BR", "BW", "FR", "FW", "ID", "SR", "SW", "TR1", "TR2", "TR3")
+
+
+@dataclasses.dataclass(frozen=True)
+class ClipSpec:
+    """One clip of a dataset: frames ``[start, stop)`` of ``path`` (at the file's rate), mirrored
+    or not, labelled ``style``; ``phase_labels`` reads the PFNN ``.phase`` file for the phase."""
+
+    path: str
+    style: str
+    start: int = 0
+    stop: int | None = None
+    mirror: bool = False
+    gait: str = ""
+    phase_labels: bool = False
+
+
+def specs_from_folder(folder: str | os.PathLike, *, styles: Mapping[str, str] | None = None,
+                      pattern: str | None = None, mirror: bool = False) -> list[ClipSpec]:
+    """Clips of every ``*.bvh`` under ``folder``.
+
+    Either ``styles`` maps a file name (or its stem) to a style, files it does not name being
+    skipped, or ``pattern`` is a regular expression with a ``style`` group matched against the
+    file stem. ``mirror`` adds a mirrored copy of each clip.
+    """
+    if (styles is None) == (pattern is None):
+        raise ValueError("give exactly one of styles= or pattern=")
+    folder = Path(folder)
+    files = sorted(folder.rglob("*.bvh"))
+    specs = []
+    regex = re.compile(pattern) if pattern else None
+    if regex is not None and "style" not in regex.groupindex:
+        raise ValueError(f"pattern {pattern!r} has no (?P<style>...) group")
+    for f in files:
+        if styles is not None:
+            style = styles.get(f.name, styles.get(f.stem))
+        else:
+            m = regex.fullmatch(f.stem)
+            style = m.group("style") if m else None
+        if style is None:
+            continue
+        specs += [ClipSpec(str(f), style)] + ([ClipSpec(str(f), style, mirror=True)] if mirror else [])
+    if styles is not None:
+        found = {s.style for s in specs}
+        missing = sorted(set(styles.values()) - found)
+        if missing:
+            raise ValueError(f"styles {missing} name no file under {folder}")
+    if not specs:
+        raise ValueError(f"no BVH file under {folder} matches the style {'mapping' if styles else 'pattern'}")
+    return specs
+
+
+def _read_csv(path: Path) -> list[dict[str, str]]:
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found (100STYLE layout needs it)")
+    with open(path, newline="", encoding="utf-8-sig") as f:
+        return list(csv.DictReader(f))
+
+
+def symmetric_styles(path: str | os.PathLike) -> dict[str, bool]:
+    """``{style: symmetric}`` from a 100STYLE ``Dataset_List.csv`` (columns ``Style Name`` and
+    ``Symmetric``, Yes/No): which styles may be mirrored."""
+    return {r["Style Name"]: r["Symmetric"].strip().lower() == "yes" for r in _read_csv(Path(path))}
+
+
+def specs_100style(root: str | os.PathLike, *, styles: Sequence[str] | None = None,
+                   gaits: Sequence[str] = GAITS_100STYLE) -> list[ClipSpec]:
+    """Clips of a 100STYLE folder: every ``<Style>/<Style>_<GAIT>.bvh`` present, cut to its
+    ``Frame_Cuts.csv`` range, mirrored too when ``Dataset_List.csv`` says the style is symmetric."""
+    root = Path(root)
+    cuts = {r["STYLE_NAME"]: r for r in _read_csv(root / "Frame_Cuts.csv")}
+    symmetric = symmetric_styles(root / "Dataset_List.csv")
+    wanted = set(styles) if styles is not None else None
+    specs = []
+    for style_dir in sorted(p for p in root.iterdir() if p.is_dir()):
+        style = style_dir.name
+        if wanted is not None and style not in wanted:
+            continue
+        if style not in cuts:
+            raise MotionDataError(f"style {style!r} is not in Frame_Cuts.csv", root / "Frame_Cuts.csv")
+        for gait in gaits:
+            path = style_dir / f"{style}_{gait}.bvh"
+            start, stop = cuts[style].get(f"{gait}_START", "N/A"), cuts[style].get(f"{gait}_STOP", "N/A")
+            if not path.is_file() or "N/A" in (start, stop):
+                continue
+            for mirror in (False, True) if symmetric.get(style, False) else (False,):
+                specs.append(ClipSpec(str(path), style, int(start), int(stop), mirror, gait))
+    if wanted is not None and (missing := sorted(wanted - {s.style for s in specs})):
+        raise ValueError(f"styles {missing} have no clip under {root}")
+    return specs
+
+
+def specs_xia(folder: str | os.PathLike, *, contents: Sequence[str] | None = None,
+              mirror: bool = True) -> list[ClipSpec]:
+    """Clips named ``<style>_<content>_000.bvh`` (Xia et al. 2015); mirrored too by default."""
+    specs = specs_from_folder(folder, pattern=r"(?P<style>[a-z]+)_(?P<content>\d+)_\d+", mirror=mirror)
+    if contents is not None:
+        specs = [s for s in specs if Path(s.path).stem.split("_")[1] in set(contents)]
+    return specs
+
+
+def specs_pfnn(folder: str | os.PathLike, style: str = "pfnn") -> list[ClipSpec]:
+    """PFNN captures that have ``.phase`` labels; the phase comes from the labels."""
+    files = sorted(p for p in Path(folder).glob("*.bvh") if p.with_suffix(".phase").is_file())
+    if not files:
+        raise ValueError(f"no BVH file with a .phase file in {folder}")
+    return [ClipSpec(str(f), style, phase_labels=True) for f in files]
+
+
+@dataclasses.dataclass(frozen=True)
+class Dataset:
+    """Rows of one layout, float32. ``inputs (N, Din)``, ``outputs (N, Dout)``, ``phases (N, P)`` (the
+    global phase for the PFNN, the 8 local-phase values for the LPN); per row ``style`` (index
+    into ``styles``), ``clip`` (index into ``specs``) and ``frame``; ``clips (C, 240, 300)`` with
+    ``clip_style (C,)``, ``clip_source (C,)`` (index into ``specs``) and ``clip_start (C,)`` (first
+    frame) for the LPN (empty for the PFNN); ``split (N,)`` 0/1/2 for train,
+    validation, test (-1 in a gap); and the input/output statistics of :meth:`normalisers`."""
+
+    styles: tuple[str, ...]
+    specs: tuple[ClipSpec, ...]
+    inputs: np.ndarray
+    outputs: np.ndarray
+    phases: np.ndarray
+    style: np.ndarray
+    clip: np.ndarray
+    frame: np.ndarray
+    clips: np.ndarray
+    clip_style: np.ndarray
+    clip_source: np.ndarray
+    clip_start: np.ndarray
+    split: np.ndarray
+    input_mean: np.ndarray
+    input_std: np.ndarray
+    output_mean: np.ndarray
+    output_std: np.ndarray
+
+    def rows_of_style(self, name: str, split: str | None = None) -> np.ndarray:
+        """Row indices of a style, optionally of one split (``"train"``, ``"validation"``, ``"test"``)."""
+        if name not in self.styles:
+            raise KeyError(f"unknown style {name!r}; the dataset has {', '.join(self.styles)}")
+        keep = self.style == self.styles.index(name)
+        if split is not None:
+            keep &= self.split == SPLITS.index(split)
+        return np.flatnonzero(keep)
+
+    def clips_of_style(self, name: str, split: str | None = None) -> np.ndarray:
+        """Style-clip indices of a style; with ``split``, only clips whose frames all lie in rows of
+        that split (a clip overlapping validation or test rows is not a training clip)."""
+        if name not in self.styles:
+            raise KeyError(f"unknown style {name!r}; the dataset has {', '.join(self.styles)}")
+        found = np.flatnonzero(self.clip_style == self.styles.index(name))
+        if split is None:
+            return found
+        want = SPLITS.index(split)
+        frames = self.clips.shape[1]
+        keep = []
+        for c in found:
+            rows = (self.clip == self.clip_source[c]) & (self.frame >= self.clip_start[c]) & (
+                self.frame < self.clip_start[c] + frames)
+            if rows.any() and (self.split[rows] == want).all():
+                keep.append(c)
+        return np.asarray(keep, dtype=np.int64)
+
+    def mirror_rows(self) -> np.ndarray:
+        """``(N,)`` the row of each row's mirrored twin (same frame of the clip's mirrored copy),
+        or -1 where the clip has no mirrored copy; for the half-mirrored batches of
+        :func:`jaxstyle.data.batching.balanced_batches` (``mirror_of=``)."""
+        out = np.full(len(self.clip), -1, dtype=np.int64)
+        where = {(s.path, s.start, s.stop, s.mirror): i for i, s in enumerate(self.specs)}
+        for i, s in enumerate(self.specs):
+            j = where.get((s.path, s.start, s.stop, not s.mirror))
+            if j is None:
+                continue
+            rows_i, rows_j = np.flatnonzero(self.clip == i), np.flatnonzero(self.clip == j)
+            # both copies have the same frames, in the same order
+            out[rows_i] = rows_j
+        return out
+
+    def normalisers(self) -> tuple[Normaliser, Normaliser]:
+        """Input and output statistics over the training rows of all styles (see
+        :mod:`jaxstyle.data.normalise`)."""
+        return Normaliser(self.input_mean, self.input_std), Normaliser(self.output_mean, self.output_std)
+
+    def normalised(self, base: "Dataset | None" = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(inputs, outputs)`` normalised with this dataset's statistics, or with ``base``'s.
+
+        A few-shot style is a small dataset of its own; normalise it with the base dataset's
+        statistics (``few_shot.normalised(base)``), as both papers do, never with its own.
+        """
+        x_norm, y_norm = (base or self).normalisers()
+        return x_norm.apply(self.inputs).astype(np.float32), y_norm.apply(self.outputs).astype(np.float32)
+
+
+def _load(spec: ClipSpec, fps: float | None) -> tuple[Motion, float]:
+    """The motion of a spec (see :func:`load_clip`) and the file's own frame rate."""
+    motion = read_bvh(spec.path)
+    source_fps = motion.fps
+    stop = motion.num_frames if spec.stop is None else min(spec.stop, motion.num_frames)
+    if not 0 <= spec.start < stop:
+        raise MotionDataError(f"frame range [{spec.start}, {spec.stop}) is empty for a clip of "
+                              f"{motion.num_frames} frames", spec.path)
+    motion = motion.frames(spec.start, stop)
+    if fps is not None and motion.fps != fps:
+        motion = transform.resample(motion, fps)
+    return (transform.mirror(motion) if spec.mirror else motion), source_fps
+
+
+def load_clip(spec: ClipSpec, fps: float | None = None) -> Motion:
+    """The motion of a spec: cut, resampled to ``fps`` if given, mirrored if asked."""
+    return _load(spec, fps)[0]
+
+
+def _cache_key(kind: str, specs: Sequence[ClipSpec], settings: dict) -> str:
+    h = hashlib.sha256()
+    h.update(json.dumps({"kind": kind, "version": CACHE_VERSION, "settings": settings,
+                         "specs": [dataclasses.asdict(s) for s in specs]}, sort_keys=True).encode())
+    for path in sorted({s.path for s in specs} | {str(Path(s.path).with_suffix(".phase")) for s in specs
+                                                  if s.phase_labels}):
+        h.update(path.encode())
+        h.update(Path(path).read_bytes())
+    return h.hexdigest()[:24]
+
+
+def _cached(kind: str, specs: Sequence[ClipSpec], settings: dict, cache_dir, build: Callable[[], Dataset]) -> Dataset:
+    if cache_dir is None:
+        return build()
+    path = Path(cache_dir) / f"{kind}-{_cache_key(kind, specs, settings)}.npz"
+    if path.is_file():
+        with np.load(path) as data:
+            meta = json.loads(str(data["meta"]))
+            arrays = {k: data[k] for k in data.files if k != "meta"}
+        return Dataset(styles=tuple(meta["styles"]), specs=tuple(ClipSpec(**s) for s in meta["specs"]), **arrays)
+    dataset = build()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    meta = json.dumps({"styles": dataset.styles, "specs": [dataclasses.asdict(s) for s in dataset.specs]})
+    arrays = {f.name: getattr(dataset, f.name) for f in dataclasses.fields(dataset)
+              if f.name not in ("styles", "specs")}
+    with open(tmp, "wb") as f:
+        np.savez(f, meta=np.array(meta), **arrays)
+    os.replace(tmp, path)  # atomic: an interrupted build leaves no half-written cache file
+    return dataset
+
+
+def _split_seed(spec: ClipSpec, seed: int) -> int:
+    """Same for a clip and its mirrored twin, so both land in the same split blocks."""
+    key = f"{Path(spec.path).name}:{spec.start}:{spec.stop}:{seed}".encode()
+    return int.from_bytes(hashlib.sha256(key).digest()[:4], "little")
+
+
+def _assemble(specs, per_clip, layout_groups, with_clips: bool, split: SplitSettings) -> Dataset:
+    styles = tuple(dict.fromkeys(s.style for s in specs))
+    xs, ys, ps, st, cl, fr, sp, clips, clip_style, clip_source, clip_start = ([] for _ in range(11))
+    for i, (spec, (x, y, p, t, c, c_start)) in enumerate(zip(specs, per_clip, strict=True)):
+        xs.append(x), ys.append(y), ps.append(p), fr.append(t)
+        st.append(np.full(len(t), styles.index(spec.style))), cl.append(np.full(len(t), i))
+        blocks = contiguous_split(len(t), split.fractions, gap=split.gap, seed=_split_seed(spec, split.seed))
+        rows = np.full(len(t), -1, np.int8)  # -1: dropped in a gap
+        for k, name in enumerate(SPLITS):
+            rows[blocks[name]] = k
+        sp.append(rows)
+        if with_clips:
+            clips.append(c), clip_style.append(np.full(len(c), styles.index(spec.style)))
+            clip_source.append(np.full(len(c), i)), clip_start.append(c_start)
+    x, y, splits = np.concatenate(xs), np.concatenate(ys), np.concatenate(sp)
+    in_groups, out_groups = layout_groups(x.shape[1])
+    train = splits == 0
+    x_norm, y_norm = fit_normaliser([x[train]], in_groups), fit_normaliser([y[train]], out_groups)
+    empty = np.zeros((0, 240, x.shape[1] - 48 if with_clips else 0))
+    f32 = np.float32  # training precision; halves the cache
+
+    def ints(parts):
+        return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
+
+    return Dataset(styles, tuple(specs), x.astype(f32), y.astype(f32), np.concatenate(ps).astype(f32),
+                   np.concatenate(st), np.concatenate(cl), np.concatenate(fr),
+                   (np.concatenate(clips) if clips else empty).astype(f32),
+                   ints(clip_style), ints(clip_source), ints(clip_start), splits,
+                   x_norm.mean, x_norm.std, y_norm.mean, y_norm.std)
+
+
+@dataclasses.dataclass(frozen=True)
+class SplitSettings:
+    """Per-clip contiguous blocks (see :func:`jaxstyle.data.batching.contiguous_split`)."""
+
+    fractions: tuple[float, float, float] = (0.8, 0.1, 0.1)
+    gap: int = 0
+    seed: int = 0
+
+
+def _pfnn_groups(input_size: int):
+    layout = PFNNLayout((input_size - 48) // 6)
+    return layout.input_groups, layout.output_groups
+
+
+def _lpn_groups(input_size: int):
+    layout = LPNLayout((input_size - 48) // 12)
+    out = dict(layout.output_groups)
+    for name in ("local_phase", "local_phase_update", "foot_contact"):
+        out.pop(name)  # per-dimension statistics for these few values
+    return layout.input_groups, out
+
+
+def _progress(items, desc: str, progress: bool):
+    if not progress:
+        return items
+    from tqdm.auto import tqdm
+
+    return tqdm(items, desc=desc, unit="clip")
+
+
+def _long_enough(motion: Motion, spec: ClipSpec, skip_short: bool) -> bool:
+    """Whether a loaded clip covers the trajectory window; if not, a warning (``skip_short``) or
+    an error naming the file."""
+    if len(valid_frames(motion.num_frames, motion.fps)) > 0:
+        return True
+    if skip_short:
+        warnings.warn(f"{spec.path}: {motion.num_frames} frames, shorter than the trajectory window; skipped",
+                      stacklevel=4)
+        return False
+    raise MotionDataError(f"clip has {motion.num_frames} frames at {motion.fps:g} fps, shorter than the "
+                          "trajectory window (pass skip_short=True to leave such clips out)", spec.path)
+
+
+def _encode_all(specs, fps, skip_short, progress, desc, encode):
+    """``(kept specs, per-clip arrays)``: each clip read once, short ones skipped or refused."""
+    kept, per_clip = [], []
+    for spec in _progress(specs, desc, progress):
+        motion, source_fps = _load(spec, fps)
+        if _long_enough(motion, spec, skip_short):
+            kept.append(spec)
+            per_clip.append(encode(spec, motion, source_fps))
+    if not kept:
+        raise ValueError("every clip is shorter than the trajectory window")
+    return kept, per_clip
+
+
+def build_pfnn_dataset(specs: Sequence[ClipSpec], *, fps: float = 60.0, cache_dir: str | os.PathLike | None = None,
+                       split: SplitSettings = SplitSettings(), skip_short: bool = False,
+                       progress: bool = False) -> Dataset:
+    """2018 PFNN rows of all clips at ``fps`` (the paper: 60). The phase is the ``.phase`` labels
+    (resampled by nearest frame) when the spec says so, else :func:`jaxstyle.global_phase`.
+    A clip shorter than the trajectory window is an error naming the file, or is skipped with a
+    warning when ``skip_short``."""
+    if not specs:
+        raise ValueError("no clips")
+
+    def encode(spec, motion, source_fps):
+        if spec.phase_labels:
+            labels, _ = read_phase_labels(spec.path)
+            idx = np.round((spec.start + np.arange(motion.num_frames)) * source_fps / fps).astype(int)
+            phase = labels[np.minimum(idx, len(labels) - 1)]
+        else:
+            phase = global_phase(motion)
+        x, y, t = encode_pfnn(motion, phase)
+        return x, y, phase[t][:, None], t, None, None
+
+    def build():
+        kept, per_clip = _encode_all(specs, fps, skip_short, progress, "PFNN features", encode)
+        return _assemble(kept, per_clip, _pfnn_groups, with_clips=False, split=split)
+
+    settings = {"fps": fps, "skip_short": skip_short, "split": dataclasses.asdict(split)}
+    return _cached("pfnn", specs, settings, cache_dir, build)
+
+
+def build_lpn_dataset(specs: Sequence[ClipSpec], *, cache_dir: str | os.PathLike | None = None,
+                      split: SplitSettings = SplitSettings(), skip_short: bool = False,
+                      progress: bool = False) -> Dataset:
+    """2022 LPN rows and style clips of all clips (at the files' rate; 100STYLE is 60 fps).
+    Short clips are handled as in :func:`build_pfnn_dataset`."""
+    if not specs:
+        raise ValueError("no clips")
+
+    def encode(spec, motion, source_fps):
+        f = encode_lpn(motion)
+        return f.inputs, f.outputs, f.phases, f.frames, f.clips, f.clip_starts
+
+    def build():
+        kept, per_clip = _encode_all(specs, None, skip_short, progress, "LPN features", encode)
+        return _assemble(kept, per_clip, _lpn_groups, with_clips=True, split=split)
+
+    settings = {"skip_short": skip_short, "split": dataclasses.asdict(split)}
+    return _cached("lpn", specs, settings, cache_dir, build)

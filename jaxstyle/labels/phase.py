@@ -1,0 +1,194 @@
+"""Global locomotion phase for the PFNN (Holden et al. 2017; Mason et al. 2018 section 5.1).
+
+The phase is 0 at the start of a right-foot contact, 0.5 at the start of a left-foot contact and
+linear in between, in cycles (``[0, 1)``), which is how the PFNN captures were hand-labelled.
+:func:`global_phase` finds those contact starts automatically (:mod:`jaxstyle.labels.contacts`).
+
+Behaviour away from steps, by design:
+
+* **Clip ends.** Before the first and after the last contact start, the phase continues at the
+  rate of the neighbouring step for at most that step's length, then holds: it never claims a
+  step that was not seen.
+* **Standing still.** With both feet planted there are no contact starts, so the phase holds
+  (a clip without any step is constant 0). A pause between two steps is one long interval, over
+  which the phase advances slowly and linearly, exactly as the hand labels do.
+* **Same foot twice** (the other foot's step was missed or shuffled): a whole cycle is assumed
+  between the two starts.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from jaxstyle.errors import MotionDataError
+from jaxstyle.labels import contacts as contacts_lib
+from jaxstyle.motion import Motion, kinematics
+
+# Chosen on the hand-labelled PFNN captures; see the README table and experiments/phase_accuracy.py.
+DEFAULT_CONTACT_MOMENT = "toe"
+DEFAULT_SPEED_THRESHOLD_M_S = 0.15
+DEFAULT_MAX_GAP_S = 0.05
+DEFAULT_MIN_DURATION_S = 0.1
+DEFAULT_MIN_LIFT_M = 0.03
+DEFAULT_RELEASE_SPEED_M_S = 0.5
+
+
+def circular_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance between phases in cycles, in ``[0, 0.5]``."""
+    d = np.mod(np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64), 1.0)
+    return np.minimum(d, 1.0 - d)
+
+
+def phase_from_contact_starts(num_frames: int, right_starts: np.ndarray, left_starts: np.ndarray) -> np.ndarray:
+    """``(T,)`` phase in ``[0, 1)`` from the frames where right and left contacts start.
+
+    Right starts are phase 0 and left starts phase 0.5; in between the phase is linear (it always
+    moves forward: half a cycle between opposite feet, a whole one between two starts of the same
+    foot). Ends and pauses behave as described in the module docstring.
+    """
+    events = sorted([(int(f), 0.0) for f in np.asarray(right_starts).ravel()]
+                    + [(int(f), 0.5) for f in np.asarray(left_starts).ravel()])
+    # Two starts in one frame (both feet land together): keep the one that alternates.
+    kept: list[tuple[int, float]] = []
+    for frame, ph in events:
+        if kept and kept[-1][0] == frame:
+            if len(kept) >= 2 and kept[-2][1] == kept[-1][1] and ph != kept[-1][1]:
+                kept[-1] = (frame, ph)
+            continue
+        kept.append((frame, ph))
+    if not kept:
+        return np.zeros(num_frames)
+    frames = np.array([f for f, _ in kept], dtype=np.float64)
+    phases = np.array([p for _, p in kept])
+    steps = np.mod(np.diff(phases), 1.0)
+    steps[steps == 0] = 1.0
+    unwrapped = phases[0] + np.concatenate([[0.0], np.cumsum(steps)])
+    t = np.arange(num_frames, dtype=np.float64)
+    out = np.interp(t, frames, unwrapped)
+    if len(kept) >= 2:
+        first_len, last_len = frames[1] - frames[0], frames[-1] - frames[-2]
+        first_rate, last_rate = steps[0] / first_len, steps[-1] / last_len
+        before = t < frames[0]
+        out[before] = unwrapped[0] - first_rate * np.minimum(frames[0] - t[before], first_len)
+        after = t > frames[-1]
+        out[after] = unwrapped[-1] + last_rate * np.minimum(t[after] - frames[-1], last_len)
+    return np.mod(out, 1.0)
+
+
+def step_starts(onset_TxF: np.ndarray, toe_heights_TxF: np.ndarray, min_lift: float) -> list[np.ndarray]:
+    """Contact starts of each foot that are footsteps, as a list of frame arrays (one per foot).
+
+    A contact start is a footstep unless the previous footstep (of either foot) was made by the
+    same foot and that foot's toe did not rise ``min_lift`` (file units) above its landing height
+    since its previous contact ended: a foot that pivots or slides and touches down again, or a
+    capture glitch that breaks a contact, is not a new step. Hops (the same foot twice, lifted
+    in between) are kept.
+    """
+    onset = np.asarray(onset_TxF, dtype=bool)
+    events = []  # (frame, foot, lift)
+    for k in range(onset.shape[1]):
+        starts, ends = contacts_lib.runs(onset[:, k])
+        for i, s in enumerate(starts):
+            if s == 0:
+                continue
+            prev_end = ends[i - 1] if i > 0 else 0
+            lift = float(np.max(toe_heights_TxF[prev_end:s + 1, k]) - toe_heights_TxF[s, k])
+            events.append((int(s), k, lift))
+    events.sort()
+    kept: list[tuple[int, int]] = []
+    for frame, foot, lift in events:
+        if kept and kept[-1][1] == foot and lift < min_lift:
+            continue
+        kept.append((frame, foot))
+    return [np.array([f for f, k in kept if k == foot], dtype=np.int64) for foot in range(onset.shape[1])]
+
+
+def footsteps(motion: Motion, *, contact_moment: str = DEFAULT_CONTACT_MOMENT,
+              height_threshold: float | None = None,
+              speed_threshold: float | None = DEFAULT_SPEED_THRESHOLD_M_S,
+              release_speed: float | None = DEFAULT_RELEASE_SPEED_M_S,
+              max_gap: float = DEFAULT_MAX_GAP_S, min_duration: float = DEFAULT_MIN_DURATION_S,
+              min_lift: float = DEFAULT_MIN_LIFT_M,
+              units_per_meter: float | None = None, feet: contacts_lib.FootJoints | None = None,
+              positions_TxJx3: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Frames where footsteps start, ``(left, right)``; the events :func:`global_phase` uses.
+
+    Args:
+      contact_moment: which moment starts a contact: ``"toe"`` (the toe joint touches down, the
+        default), ``"heel"`` (heel strike), ``"first"`` (either) or ``"planted"`` (both; the
+        whole foot is flat). See :meth:`jaxstyle.labels.contacts.FootContacts.moment`.
+      height_threshold: ``d_max`` in metres. Off (``None``) by default: a slow foot is a planted
+        foot, also on a step or a box, and the speed test alone finds every stance on the PFNN
+        captures, whose last steps land on a raised surface.
+      speed_threshold: ``v_max`` in m/s (the 2022 paper's 0.15): a contact starts when the joint
+        slows below it.
+      release_speed: m/s; the contact lasts until the joint is faster than this (hysteresis, see
+        :func:`jaxstyle.labels.contacts.joint_contacts`), so a planted foot that slides or jitters, as
+        on the PFNN captures' last steps, stays one contact. ``None`` disables it.
+      max_gap, min_duration: seconds; a contact broken for up to ``max_gap`` (a glitch in the
+        capture) is one contact, and contacts shorter than ``min_duration`` (a toe scuffing a
+        stair edge) are ignored.
+      min_lift: metres; see :func:`step_starts`.
+      units_per_meter, feet, positions_TxJx3: see :func:`jaxstyle.labels.contacts.foot_contacts`.
+    """
+    feet = feet or contacts_lib.FootJoints.find(motion)
+    upm = contacts_lib.estimate_units_per_meter(motion) if units_per_meter is None else float(units_per_meter)
+    pos = kinematics.global_positions(motion) if positions_TxJx3 is None else positions_TxJx3
+    fc = contacts_lib.foot_contacts(motion, height_threshold=height_threshold, speed_threshold=speed_threshold,
+                                    release_speed=release_speed, units_per_meter=upm, max_gap=max_gap,
+                                    min_duration=min_duration, feet=feet, positions_TxJx3=pos)
+    toe_heights = pos[:, list(feet.toes), kinematics.UP_AXIS]
+    left, right = step_starts(fc.moment(contact_moment), toe_heights, min_lift * upm)
+    return left, right
+
+
+def global_phase(motion: Motion, **footstep_kwargs) -> np.ndarray:
+    """``(T,)`` PFNN phase in ``[0, 1)``: 0 where right footsteps start, 0.5 where left ones do.
+
+    Keyword arguments go to :func:`footsteps` (contact moment, thresholds); the defaults were
+    chosen on the hand-labelled PFNN captures (``experiments/phase_accuracy.py``).
+    """
+    left, right = footsteps(motion, **footstep_kwargs)
+    return phase_from_contact_starts(motion.num_frames, right, left)
+
+
+def label_errors(bvh_path, **global_phase_kwargs) -> np.ndarray:
+    """Circular errors (cycles) of :func:`global_phase` against a capture's hand-cleaned labels,
+    over its labelled frames only (see :func:`read_phase_labels`)."""
+    from jaxstyle.motion.bvh import read_bvh
+
+    labels, labelled = read_phase_labels(bvh_path)
+    motion = read_bvh(bvh_path)
+    if motion.num_frames != len(labels):
+        raise ValueError(f"{bvh_path}: {motion.num_frames} frames but {len(labels)} phase labels")
+    return circular_distance(global_phase(motion, **global_phase_kwargs)[labelled], labels[labelled])
+
+
+def read_phase_labels(bvh_path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Hand-cleaned PFNN phase labels of a capture: ``(phase_T, labelled_T)``.
+
+    Reads ``<name>.phase`` (one phase in ``[0, 1)`` per frame) and ``<name>_footsteps.txt``
+    beside ``<name>.bvh``. A frame is labelled only between the first and last footstep listed
+    (clipped to the clip); outside that range the file holds 0 meaning "unlabelled", and a file
+    with a single footstep has no labelled frame.
+    """
+    bvh_path = Path(bvh_path)
+    stem = bvh_path.with_suffix("")
+    phase_path, steps_path = Path(f"{stem}.phase"), Path(f"{stem}_footsteps.txt")
+    for p in (phase_path, steps_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"{p} not found (phase labels of {bvh_path})")
+    try:
+        phase = np.loadtxt(phase_path, dtype=np.float64, ndmin=1)
+        steps = np.array([int(tok) for tok in steps_path.read_text().split()], dtype=np.int64)
+    except ValueError as e:
+        raise MotionDataError(f"cannot read phase labels: {e}", phase_path) from None
+    if phase.ndim != 1 or not np.isfinite(phase).all() or (phase < 0).any() or (phase >= 1).any():
+        raise MotionDataError("phase labels must be one finite value in [0, 1) per line", phase_path)
+    labelled = np.zeros(len(phase), dtype=bool)
+    if len(steps) >= 2:
+        labelled[max(int(steps.min()), 0):min(int(steps.max()), len(phase) - 1) + 1] = True
+    return phase, labelled

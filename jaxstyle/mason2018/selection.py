@@ -1,0 +1,404 @@
+"""Few-shot style learning end to end: hold-out, sweep, model selection, report (2018 section 7).
+
+The paper chose each new style's dropout rate by eye. jaxstyle chooses it automatically:
+
+1. **Hold-out** (:func:`holdout_rows`): the last locomotion cycle of every clip of a style (by its
+   phase) is kept for validation, after a gap of ``gap_seconds`` so that the trajectory windows of
+   the last training rows and the first validation rows overlap less; a clip's mirrored copy
+   holds out the same frames.
+2. **Sweep**: every (style, rate) pair is fine-tuned in one compiled program
+   (:func:`jaxstyle.mason2018.fewshot.finetune_sweep`).
+3. **Validation loss** per pair (:func:`validation_grid`): MSE of the held-out rows on normalised
+   outputs, dropout off.
+4. **Closed-loop check** per pair (:func:`check_rollouts`): the character walks a turning path
+   (:func:`jaxstyle.control.controller.turning_path`, the style's own median speed, ``turn_deg_per_s``)
+   for ``seconds``, driven only by its own predictions, i.e. beyond anything in the clip; the
+   frozen base without an adapter (the style-agnostic "average motion") walks the same path from
+   the same start. A pair passes when (:class:`RolloutCheck`) every output is finite, bones keep
+   their length (mean relative error <= ``max_bone_error``), feet touch the floor (fraction of
+   frames with a foot on the floor >= ``min_contact_ratio`` x the real clip's), the adapter does
+   not make feet slide (median speed of feet on the floor <= ``max_skating_ratio`` x the base's
+   on the same path + ``skating_slack_m_s``) and the character travels between ``min_progress``
+   and ``1 / min_progress`` times the requested distance (checked when the style moves at least
+   0.1 m/s). Sliding is judged against the base rather than the real clip because raw PFNN
+   output slides more than motion capture whatever the adapter (on the shared 100STYLE sample,
+   0.3-0.5 m/s against 0.1-0.2 m/s; the 2022 paper removes it with foot IK): what the check must
+   catch is an adapter that breaks what the base can do. The real clip's figures are reported
+   beside it.
+5. **Selection rule** (:func:`choose_rates`): the rate with the lowest validation loss among the
+   rates that pass the check; if none passes, the lowest validation loss, flagged as failing.
+
+:func:`fewshot_sweep` runs all of it; :func:`write_report` saves one orbax adapter checkpoint per
+style (with its config), ``results.csv`` (all pairs), ``heatmap.png`` and ``chosen_rates.json``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import shutil
+import time
+import warnings
+from pathlib import Path
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxstyle.control import controller
+from jaxstyle.data.datasets import Dataset
+from jaxstyle.data.normalise import Normaliser
+from jaxstyle.labels.contacts import estimate_units_per_meter
+from jaxstyle.mason2018 import fewshot
+from jaxstyle.mason2018.train import TrainData
+from jaxstyle.motion import Motion
+from jaxstyle.nn import pfnn
+from jaxstyle.output import metrics
+from jaxstyle.train.checkpoint import Checkpointer
+
+# --- 1. hold-out -----------------------------------------------------------------------------------
+
+def holdout_rows(dataset: Dataset, style: str, *, cycles: float = 1.0, gap_seconds: float = 0.25,
+                 max_fraction: float = 0.34, fps: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
+    """``(train, validation)`` row indices of ``style``: per clip, the rows of its last ``cycles``
+    locomotion cycles (measured by the phase, at most ``max_fraction`` of the clip's rows) are
+    validation, the ``gap_seconds`` before them are dropped, the rest is training.
+
+    Warns when a clip's last ``cycles`` span more than ``max_fraction`` of its rows, so that only
+    that fraction is held out: the clip's phase then advances too slowly for its motion, which
+    usually means footsteps were missed (e.g. a fast gait at a low frame rate) and validation does
+    not cover a whole cycle."""
+    rows = dataset.rows_of_style(style)
+    phase = dataset.phases[:, 0]
+    train, val = [], []
+    gap = int(round(gap_seconds * fps))
+    for clip in np.unique(dataset.clip[rows]):
+        r = rows[dataset.clip[rows] == clip]
+        r = r[np.argsort(dataset.frame[r])]
+        step = np.mod(np.diff(phase[r]), 1.0)
+        from_end = np.concatenate([np.cumsum(step[::-1])[::-1], [0.0]])  # phase still to go after each row
+        n_val = int(np.count_nonzero(from_end < cycles))
+        if n_val > int(max_fraction * len(r)):
+            warnings.warn(f"style {style!r}: the last {cycles:g} cycle(s) of {dataset.specs[clip].path} span "
+                          f"{n_val} of its {len(r)} rows (the phase advances {from_end[0]:.1f} cycles in all); "
+                          f"holding out {int(max_fraction * len(r))} rows ({max_fraction:.0%}) instead. Check the "
+                          f"clip's phase labels (missed footsteps?)", stacklevel=2)
+        n_val = max(1, min(n_val, int(max_fraction * len(r))))
+        if len(r) - n_val - gap < 1:
+            raise ValueError(f"style {style!r}: clip {dataset.specs[clip].path} has {len(r)} rows, too few to hold "
+                             f"out {n_val} validation rows after a gap of {gap}")
+        val.append(r[-n_val:])
+        train.append(r[:len(r) - n_val - gap])
+    return np.concatenate(train), np.concatenate(val)
+
+
+def fewshot_data(dataset: Dataset, normalisers: tuple[Normaliser, Normaliser], styles: Sequence[str] | None = None,
+                 **holdout) -> TrainData:
+    """:class:`TrainData` of the few-shot ``styles`` (default: all of the dataset's), normalised with
+    the BASE model's statistics, split by :func:`holdout_rows` (its keyword arguments)."""
+    styles = tuple(dataset.styles if styles is None else styles)
+    x_norm, y_norm = normalisers
+    splits = [holdout_rows(dataset, s, **holdout) for s in styles]
+    return TrainData(x_norm.apply(dataset.inputs).astype(np.float32), y_norm.apply(dataset.outputs).astype(np.float32),
+                     dataset.phases[:, 0].astype(np.float32), tuple(t for t, _ in splits),
+                     tuple(v for _, v in splits), styles)
+
+
+# --- 3. validation loss ------------------------------------------------------------------------------
+
+@jax.jit
+def _mse_over_rates(params, adapters_R, x, y, phase):
+    def one(a):
+        return jnp.mean((pfnn.pfnn_apply(params, x, phase, adapter=a) - y) ** 2)
+
+    return jax.vmap(one)(adapters_R)
+
+
+def validation_grid(params: dict, adapters_SxR: dict, data: TrainData) -> np.ndarray:
+    """``(S, R)`` validation MSE (normalised outputs, no dropout, no L1) of every pair."""
+    out = []
+    for s, rows in enumerate(data.val_rows):
+        adapters_R = jax.tree.map(lambda v, s=s: v[s], adapters_SxR)
+        out.append(np.asarray(_mse_over_rates(params, adapters_R, data.x[rows], data.y[rows], data.phase[rows])))
+    return np.stack(out)
+
+
+# --- 4. closed-loop check ----------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class RolloutCheck:
+    """The closed-loop check's path and pass thresholds (see the module docstring)."""
+
+    seconds: float = 5.0
+    turn_deg_per_s: float = 45.0
+    max_bone_error: float = 0.10
+    min_contact_ratio: float = 0.5
+    max_skating_ratio: float = 1.5
+    skating_slack_m_s: float = 0.05
+    min_progress: float = 0.5
+    tolerance_m: float = 0.03
+
+
+ROLLOUT_FIELDS = ("finite", "bone_error", "contact_fraction", "skating_m_s", "progress", "passed")
+
+
+def _rollout_rates(params, adapters_R, x_norm, y_norm, state, controls):
+    return jax.vmap(lambda a: controller.rollout(params, a, x_norm, y_norm, state, controls))(adapters_R)
+
+
+def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normaliser, Normaliser], dataset: Dataset,
+                   data: TrainData, skeleton: Motion, *, fps: float = 60.0, check: RolloutCheck | None = None,
+                   progress: bool = False) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Closed-loop rollouts of every pair and their measures: ``(S, R)`` arrays named by
+    :data:`ROLLOUT_FIELDS`, and per-style reference figures: of the real training rows
+    (``contact_fraction``, ``skating_m_s``, ``speed_m_s``) and of the base without an adapter on
+    the same path (``base_skating_m_s``, ``base_bone_error``)."""
+    check = check or RolloutCheck()
+    upm = estimate_units_per_meter(skeleton)
+    x_norm, y_norm = normalisers
+    num_frames = int(round(check.seconds * fps))
+    num_styles = len(data.styles)
+    num_rates = jax.tree.leaves(adapters_SxR)[0].shape[1]
+    out = {k: np.zeros((num_styles, num_rates)) for k in ROLLOUT_FIELDS}
+    ref = {k: np.zeros(num_styles) for k in ("contact_fraction", "skating_m_s", "speed_m_s", "base_skating_m_s",
+                                             "base_bone_error")}
+    styles = range(num_styles)
+    if progress:
+        from tqdm.auto import tqdm
+
+        styles = tqdm(styles, desc="closed-loop checks", unit="style")
+    for s in styles:
+        rows = data.train_rows[s]
+        real_y = dataset.outputs[rows]
+        real, floor = metrics.reference_foot_stats(real_y, skeleton, fps, units_per_meter=upm,
+                                                   tolerance_m=check.tolerance_m)
+        speed = float(np.median(np.linalg.norm(real_y[:, :2], axis=-1))) * fps  # units / s
+        ref["contact_fraction"][s], ref["skating_m_s"][s], ref["speed_m_s"][s] = (
+            real.contact_fraction, real.skating, speed / upm)
+        first = rows[np.argmin(dataset.frame[rows])]
+        state = controller.initial_state(dataset.inputs[first], float(dataset.phases[first, 0]), skeleton.num_joints)
+        controls = controller.turning_path(num_frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
+        adapters_R = jax.tree.map(lambda v, s=s: v[s], adapters_SxR)
+        result = _rollout_rates(params, adapters_R, x_norm, y_norm, state, controls)
+        base = controller.rollout(params, None, x_norm, y_norm, state, controls)
+        base_pos, base_origin = np.asarray(base.positions), np.asarray(base.origin)
+        base_measures = _rollout_measures(base_pos, base_origin, bool(np.isfinite(base_pos).all()), skeleton, fps,
+                                          floor, upm, check, speed)
+        ref["base_skating_m_s"][s] = base_measures["skating_m_s"]
+        ref["base_bone_error"][s] = base_measures["bone_error"]
+        positions, origin, outputs = (np.asarray(v) for v in (result.positions, result.origin, result.outputs))
+        for r in range(num_rates):
+            finite = bool(np.isfinite(positions[r]).all() and np.isfinite(outputs[r]).all())
+            measures = _rollout_measures(positions[r], origin[r], finite, skeleton, fps, floor, upm, check, speed)
+            for k, v in measures.items():
+                out[k][s, r] = v
+    out["passed"] = passes_check(out, ref, check).astype(float)
+    return out, ref
+
+
+def _rollout_measures(positions, origin, finite: bool, skeleton: Motion, fps: float, floor, upm: float,
+                      check: RolloutCheck, speed: float) -> dict[str, float]:
+    """One rollout's measures (the :data:`ROLLOUT_FIELDS` but ``passed``); NaN when not ``finite``.
+    ``speed`` is the requested speed in file units per second."""
+    if not finite:
+        return {"finite": 0.0, "bone_error": np.nan, "contact_fraction": np.nan, "skating_m_s": np.nan,
+                "progress": np.nan}
+    feet = metrics.positions_foot_stats(positions, skeleton, fps, floor, units_per_meter=upm,
+                                        tolerance_m=check.tolerance_m)
+    travelled = float(np.sum(np.linalg.norm(np.diff(origin, axis=0), axis=-1)))
+    return {"finite": 1.0, "bone_error": float(np.mean(metrics.bone_length_errors(positions, skeleton))),
+            "contact_fraction": feet.contact_fraction, "skating_m_s": feet.skating,
+            "progress": travelled / (speed * check.seconds) if speed > 0 else np.nan}
+
+
+def passes_check(out: dict[str, np.ndarray], ref: dict[str, np.ndarray], check: RolloutCheck) -> np.ndarray:
+    """``(S, R)`` whether each pair passes :class:`RolloutCheck`, from the measures ``(S, R)`` and
+    per-style references ``(S,)`` of :func:`check_rollouts`."""
+    base_skating, speed = ref["base_skating_m_s"][:, None], ref["speed_m_s"][:, None]
+    skating, progress = out["skating_m_s"], out["progress"]
+    ok = out["finite"].astype(bool)
+    with np.errstate(invalid="ignore"):
+        ok &= out["bone_error"] <= check.max_bone_error
+        ok &= out["contact_fraction"] >= check.min_contact_ratio * ref["contact_fraction"][:, None]
+        # judged against the base only where the base's own rollout was finite
+        ok &= ~np.isfinite(base_skating) | np.isnan(skating) | (
+            skating <= check.max_skating_ratio * base_skating + check.skating_slack_m_s)
+        # the distance only for styles that move
+        ok &= (speed < 0.1) | ((progress >= check.min_progress) & (progress <= 1.0 / check.min_progress))
+    return ok
+
+
+# --- 5. selection ------------------------------------------------------------------------------------
+
+def choose_rates(val_SxR: np.ndarray, passed_SxR: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per style the index of the chosen rate and whether it passed the closed-loop check: the
+    lowest validation loss among passing rates, else the lowest validation loss overall."""
+    val = np.where(np.isfinite(val_SxR), val_SxR, np.inf)
+    masked = np.where(passed_SxR.astype(bool), val, np.inf)
+    any_pass = np.isfinite(masked).any(axis=1)
+    chosen = np.where(any_pass, np.argmin(masked, axis=1), np.argmin(val, axis=1))
+    return chosen, any_pass
+
+
+# --- the whole pipeline and its report ------------------------------------------------------------
+
+@dataclasses.dataclass
+class SweepResult:
+    """Everything a few-shot sweep produced; ``adapters`` has leading axes ``(S, R)``."""
+
+    styles: tuple[str, ...]
+    rates: tuple[float, ...]
+    adapters: dict
+    train_loss: np.ndarray
+    validation_loss: np.ndarray
+    rollout: dict[str, np.ndarray]
+    reference: dict[str, np.ndarray]
+    chosen: np.ndarray
+    chosen_passed: np.ndarray
+    train_rows: tuple[int, ...]
+    validation_rows: tuple[int, ...]
+    seconds: dict[str, float]
+
+    def chosen_rate(self, style: str) -> float:
+        return self.rates[int(self.chosen[self.styles.index(style)])]
+
+    def adapter(self, style: str, rate_index: int | None = None) -> dict:
+        """One style's adapter, at its chosen rate unless ``rate_index`` is given."""
+        s = self.styles.index(style)
+        r = int(self.chosen[s]) if rate_index is None else rate_index
+        return jax.tree.map(lambda v: v[s, r], self.adapters)
+
+
+def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], dataset: Dataset, skeleton: Motion,
+                  config: fewshot.SweepConfig | None = None, *, styles: Sequence[str] | None = None,
+                  check: RolloutCheck | None = None, holdout: dict | None = None, fps: float = 60.0,
+                  chunk_steps: int = 100, shard: bool = False, progress: bool = True) -> SweepResult:
+    """Fine-tune a new adapter for every (style, rate) of ``dataset`` (few-shot styles, PFNN rows)
+    on a frozen base, then validate, check and choose a rate per style (module docstring).
+
+    Args:
+      params: the frozen base PFNN; ``normalisers``: its input and output statistics.
+      dataset: the few-shot styles' rows (:func:`jaxstyle.data.datasets.build_pfnn_dataset`).
+      skeleton: a clip of the skeleton (bone lengths, feet, units) for the closed-loop check.
+      config: sweep settings (:class:`jaxstyle.mason2018.fewshot.SweepConfig`); its ``model`` must describe
+        ``params`` (the default is the paper's 234 -> 512 -> 512 -> 400 network).
+      styles: a subset of the dataset's styles; ``check``: :class:`RolloutCheck` thresholds;
+      holdout: keyword arguments of :func:`holdout_rows`; ``chunk_steps``: steps per compiled
+        call between progress updates; ``shard``: spread the styles over all devices
+        (:func:`jaxstyle.mason2018.fewshot.finetune_sweep`); ``progress``: tqdm bars.
+    """
+    config = config or fewshot.SweepConfig()
+    check = check or RolloutCheck()
+    if params["l0"]["W"].shape[1] != dataset.inputs.shape[1]:
+        raise ValueError(f"the base model takes {params['l0']['W'].shape[1]} inputs but the few-shot "
+                         f"dataset has {dataset.inputs.shape[1]} (a different skeleton?)")
+    timings = {}
+    data = fewshot_data(dataset, normalisers, styles, fps=fps, **(holdout or {}))
+    batches, mask = fewshot.sweep_batches(data.train_rows, config.epochs, config.batch_size, seed=config.seed)
+    t0 = time.perf_counter()
+    adapters, losses = fewshot.finetune_sweep(params, jnp.asarray(data.x), jnp.asarray(data.y),
+                                              jnp.asarray(data.phase), batches, mask, config,
+                                              chunk_steps=chunk_steps, shard=shard, progress=progress)
+    jax.block_until_ready(adapters)
+    timings["sweep"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    val = validation_grid(params, adapters, data)
+    rollout, reference = check_rollouts(params, adapters, normalisers, dataset, data, skeleton, fps=fps, check=check,
+                                        progress=progress)
+    timings["selection"] = time.perf_counter() - t0
+    chosen, passed = choose_rates(val, rollout["passed"])
+    losses = np.asarray(losses)
+    per_epoch = np.maximum(mask.sum(1) // max(config.epochs, 1), 1)
+    final_train = np.stack([np.nanmean(losses[s, :, mask[s].sum() - per_epoch[s]:mask[s].sum()], axis=-1)
+                            for s in range(len(data.styles))])
+    return SweepResult(data.styles, tuple(config.rates), adapters, final_train, val, rollout, reference, chosen,
+                       passed, tuple(len(r) for r in data.train_rows), tuple(len(r) for r in data.val_rows), timings)
+
+
+def write_report(result: SweepResult, directory: str | os.PathLike, config: fewshot.SweepConfig) -> dict[str, Path]:
+    """Write ``results.csv``, ``heatmap.png``, ``chosen_rates.json`` and ``adapters/<style>/`` (an
+    orbax checkpoint of the chosen adapter, its config beside it) under ``directory``, replacing
+    an earlier report's files there (each file is written whole, then renamed); returns the
+    paths."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = {"csv": directory / "results.csv", "heatmap": directory / "heatmap.png",
+             "chosen": directory / "chosen_rates.json", "adapters": directory / "adapters"}
+    tmp = paths["csv"].with_name("results.csv.tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["style", "rate", "train_rows", "validation_rows", "train_loss", "validation_loss"]
+                   + [f"rollout_{k}" for k in ROLLOUT_FIELDS] + ["chosen"])
+        for s, style in enumerate(result.styles):
+            for r, rate in enumerate(result.rates):
+                w.writerow([style, rate, result.train_rows[s], result.validation_rows[s],
+                            f"{result.train_loss[s, r]:.6f}", f"{result.validation_loss[s, r]:.6f}"]
+                           + [_fmt(result.rollout[k][s, r]) for k in ROLLOUT_FIELDS]
+                           + [int(result.chosen[s] == r)])
+    os.replace(tmp, paths["csv"])
+    plot_heatmap(result, paths["heatmap"])
+    chosen = {style: {"rate": result.rates[int(result.chosen[s])], "validation_loss": float(result.validation_loss[
+        s, result.chosen[s]]), "passed_check": bool(result.chosen_passed[s])} for s, style in enumerate(result.styles)}
+    tmp = paths["chosen"].with_name("chosen_rates.json.tmp")
+    tmp.write_text(json.dumps(chosen, indent=2))
+    os.replace(tmp, paths["chosen"])
+    for s, style in enumerate(result.styles):
+        # written beside, then renamed over any earlier report's adapter
+        final = paths["adapters"] / style
+        tmp = paths["adapters"] / f".{style}.tmp-{os.getpid()}"
+        shutil.rmtree(tmp, ignore_errors=True)
+        ckpt = Checkpointer(tmp, {"sweep": config, "style": style, "rate": result.rates[int(result.chosen[s])]},
+                            max_to_keep=1)
+        ckpt.save(0, result.adapter(style))
+        ckpt.close()
+        if final.exists():
+            shutil.rmtree(final)
+        os.replace(tmp, final)
+    return paths
+
+
+def load_adapter(directory: str | os.PathLike, config: pfnn.PFNNConfig) -> dict:
+    """An adapter written by :func:`write_report` (``directory`` = ``.../adapters/<style>``)."""
+    path = Path(directory)
+    saved = json.loads((path / "config.json").read_text())
+    ckpt = Checkpointer(path, saved)
+    adapter = ckpt.restore(pfnn.init_adapter(jax.random.PRNGKey(0), config))
+    ckpt.close()
+    return adapter
+
+
+def _fmt(v) -> str:
+    v = float(v)
+    return "" if np.isnan(v) else f"{v:.6g}"
+
+
+def plot_heatmap(result: SweepResult, path: str | os.PathLike) -> None:
+    """Styles x rates validation loss, chosen rates boxed, failed closed-loop checks crossed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    val = result.validation_loss
+    fig, ax = plt.subplots(figsize=(1.6 + 1.1 * len(result.rates), 0.9 + 0.45 * len(result.styles)))
+    im = ax.imshow(val, cmap="viridis_r", aspect="auto")
+    ax.set_xticks(range(len(result.rates)), [f"{r:g}" for r in result.rates])
+    ax.set_yticks(range(len(result.styles)), result.styles)
+    ax.set_xlabel("dropout rate")
+    for s in range(len(result.styles)):
+        for r in range(len(result.rates)):
+            mark = "" if result.rollout["passed"][s, r] else " x"
+            ax.text(r, s, f"{val[s, r]:.3f}{mark}", ha="center", va="center", fontsize=8,
+                    color="white" if val[s, r] > np.nanmean(val) else "black")
+        ax.add_patch(plt.Rectangle((result.chosen[s] - 0.5, s - 0.5), 1, 1, fill=False, edgecolor="red", lw=2))
+    fig.colorbar(im, ax=ax, label="validation MSE (normalised)")
+    ax.set_title("few-shot sweep (red: chosen; x: failed closed-loop check)", fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)

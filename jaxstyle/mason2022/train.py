@@ -1,0 +1,425 @@
+"""Training, testing and new-style fine-tuning of the 2022 style models (Mason, Starke & Komura
+2022, sections 4.3 and 5.3), for any of the seven models of :mod:`jaxstyle.nn.style_models`.
+
+* :func:`style_data` turns an LPN :class:`jaxstyle.data.datasets.Dataset` into normalised arrays:
+  inputs, outputs, the gating input of the backbone, normalised style clips, and per style its
+  training / validation / test rows and training clips (clips lying wholly in training rows).
+* :func:`batch_loss`: Eq. 5-7, MSE on the normalised outputs plus ``bone_loss_weight`` times the
+  bone-length loss on the de-normalised joint positions in metres (the authors' data is in
+  metres; 100STYLE files are in centimetres, so positions are divided by the skeleton's units per
+  metre). A FiLM model's style comes from one training clip of the batch's style per step.
+* :func:`train`: style-balanced training (each minibatch one style, round robin, an epoch one
+  pass over the smallest style; :func:`jaxstyle.data.batching.balanced_batches`), Adam 1e-4, batch
+  32, dropout 0.3, steps in jitted ``lax.scan`` chunks under a progress bar, per-epoch
+  validation, orbax checkpoints with the config beside them, ``log.csv``; resumes.
+* :func:`evaluate`: per-style normalised MSE and bone-length loss, dropout off; a FiLM model uses
+  each style's precomputed FiLM vector (the mean over its training clips, as at runtime).
+* :func:`finetune_film_sweep`: new styles by fine-tuning only the FiLM generator (LPN and gating
+  frozen) for every (new style, dropout rate) pair in one compiled ``vmap`` x ``vmap`` of
+  :func:`jaxstyle.mason2018.fewshot.train_scan`, as the 2018 few-shot sweep.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from pathlib import Path
+from typing import NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from jaxstyle.data.batching import balanced_batches
+from jaxstyle.data.lpn_features import LPNLayout, bone_parents, end_effector_columns
+from jaxstyle.labels.contacts import estimate_units_per_meter
+from jaxstyle.mason2018 import fewshot
+from jaxstyle.motion import Motion
+from jaxstyle.nn import film_generator as film
+from jaxstyle.nn import lpn, style_models
+from jaxstyle.nn.style_models import StyleModelConfig
+from jaxstyle.train import runlog
+from jaxstyle.train.checkpoint import Checkpointer
+
+
+@dataclasses.dataclass(frozen=True)
+class LPNTrainConfig:
+    """Paper: batch 32, Adam 1e-4, dropout 0.3 everywhere, MSE + BLL weighted 1:1, 90 epochs."""
+
+    model: StyleModelConfig = StyleModelConfig()
+    epochs: int = 90
+    batch_size: int = 32
+    learning_rate: float = 1e-4
+    dropout_rate: float = 0.3
+    bone_loss_weight: float = 1.0
+    seed: int = 0
+    log_every: int = 50
+
+
+class BonePositions(NamedTuple):
+    """Where the joint positions sit in the outputs and how to de-normalise them to metres:
+    ``metres = y[:, start:start + 3 J] * scale + offset``; ``parents (J,)`` of the bones."""
+
+    start: int
+    scale: np.ndarray
+    offset: np.ndarray
+    parents: tuple[int, ...]
+
+
+class StyleData(NamedTuple):
+    """Normalised arrays of an LPN dataset for the style models (see :func:`style_data`)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    gate: np.ndarray
+    clips: np.ndarray
+    train_rows: tuple[np.ndarray, ...]
+    val_rows: tuple[np.ndarray, ...]
+    test_rows: tuple[np.ndarray, ...]
+    train_clips: tuple[np.ndarray, ...]
+    styles: tuple[str, ...]
+    bones: BonePositions
+
+
+def style_data(dataset, skeleton: Motion, *, backbone: str = "lpn", styles: Sequence[str] | None = None,
+               base=None, gate: np.ndarray | None = None) -> StyleData:
+    """Arrays for training or testing on ``styles`` (default all) of an LPN dataset.
+
+    ``skeleton``: a clip of the dataset's skeleton (bone parents and units). ``base``: normalise
+    with another dataset's statistics (a new style with the base model's, as both papers do).
+    The gating input is the 8 local-phase values (``"lpn"``) or the 12 end-effector velocity
+    inputs (``"mann"``); the PFNN backbone needs a global phase per row, given as ``gate``.
+    """
+    styles = tuple(dataset.styles if styles is None else styles)
+    layout = LPNLayout((dataset.inputs.shape[1] - 48) // 12)
+    if dataset.clips.shape[0] == 0:
+        raise ValueError("the dataset has no style clips: build it with jaxstyle.data.datasets.build_lpn_dataset")
+    x, y = dataset.normalised(base)
+    x_norm, y_norm = (base or dataset).normalisers()
+    if gate is None:
+        if backbone == "lpn":
+            gate = dataset.phases
+        elif backbone == "mann":
+            gate = x[:, end_effector_columns(skeleton)]
+        else:
+            raise ValueError("the PFNN backbone needs a global phase per row: pass gate=phase_N")
+    gate = np.asarray(gate, np.float32)
+    if len(gate) != len(x):
+        raise ValueError(f"gate has {len(gate)} rows, the dataset {len(x)}")
+    joints = layout.input_groups
+    clips = ((dataset.clips - x_norm.mean[joints["joint_position"].start:])
+             / x_norm.std[joints["joint_position"].start:]).astype(np.float32)
+    pos = layout.output_groups["joint_position"]
+    unit = estimate_units_per_meter(skeleton)
+    parents = bone_parents(skeleton)
+    if len(parents) != layout.num_bones:
+        raise ValueError(f"the skeleton has {len(parents)} LPN bones, the dataset {layout.num_bones}")
+    bones = BonePositions(pos.start, (y_norm.std[pos] / unit).astype(np.float32),
+                          (y_norm.mean[pos] / unit).astype(np.float32), tuple(int(p) for p in parents))
+    train_clips = tuple(dataset.clips_of_style(s, "train") for s in styles)
+    for s, c in zip(styles, train_clips, strict=True):
+        if len(c) == 0:
+            raise ValueError(f"style {s!r} has no style clip inside its training rows")
+    return StyleData(x, y, gate, clips, tuple(dataset.rows_of_style(s, "train") for s in styles),
+                     tuple(dataset.rows_of_style(s, "validation") for s in styles),
+                     tuple(dataset.rows_of_style(s, "test") for s in styles), train_clips, styles, bones)
+
+
+# --- loss ---------------------------------------------------------------------------------------
+
+def positions_m(y_BxO, bones: BonePositions):
+    """``(B, J, 3)`` joint positions in metres from normalised outputs."""
+    n = len(bones.parents)
+    p = y_BxO[:, bones.start:bones.start + 3 * n] * bones.scale + bones.offset
+    return p.reshape(len(y_BxO), n, 3)
+
+
+def losses(pred_BxO, y_BxO, bones: BonePositions) -> tuple[jax.Array, jax.Array]:
+    """``(mse, bll)``: Eq. 5 and Eq. 7 for one batch (bone lengths in metres)."""
+    mse = jnp.mean(jnp.square(pred_BxO - y_BxO))
+    bll = lpn.bone_length_loss(positions_m(pred_BxO, bones), positions_m(y_BxO, bones), bones.parents)
+    return mse, bll
+
+
+def _style(params, config: StyleModelConfig, clips, style, clip, key, rate):
+    if config.modulation == "film":
+        return film.generator_apply(params["style"]["generator"], clips[clip][None], key=key, dropout_rate=rate)
+    return style_models.style_runtime(params, config, style)
+
+
+def batch_loss(params, config: StyleModelConfig, arrays, idx_B, style, clip, key, rate, bones: BonePositions,
+               bone_loss_weight) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+    """``MSE + w BLL`` of one minibatch of style ``style`` (rows ``idx_B``), a FiLM model's
+    parameters from clip ``clip``; returns the total and ``(mse, bll)``."""
+    x, y, gate, clips = arrays
+    k_style, k_model = jax.random.split(key)
+    st = _style(params, config, clips, style, clip, k_style, rate)
+    pred = style_models.model_apply(params, config, x[idx_B], gate[idx_B], st, key=k_model, dropout_rate=rate)
+    mse, bll = losses(pred, y[idx_B], bones)
+    return mse + bone_loss_weight * bll, (mse, bll)
+
+
+# --- training -----------------------------------------------------------------------------------
+
+def init_state(key: jax.Array, config: LPNTrainConfig) -> dict:
+    params = style_models.init_model(key, config.model)
+    return {"params": params, "opt_state": optax.adam(config.learning_rate).init(params),
+            "epoch": jnp.zeros((), jnp.int32)}
+
+
+@functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate"))
+def _train_chunk(params, opt_state, arrays, batches_TxB, styles_T, clips_T, keys_T, rate, weight, *,
+                 config: StyleModelConfig, bones: BonePositions, learning_rate: float):
+    optimiser = optax.adam(learning_rate)
+
+    def step(carry, inputs):
+        p, opt = carry
+        idx, style, clip, key = inputs
+        (value, parts), grads = jax.value_and_grad(batch_loss, has_aux=True)(
+            p, config, arrays, idx, style, clip, key, rate, _bones(bones), weight)
+        updates, opt = optimiser.update(grads, opt)
+        return (optax.apply_updates(p, updates), opt), jnp.stack([value, *parts])
+
+    (params, opt_state), out = jax.lax.scan(step, (params, opt_state), (batches_TxB, styles_T, clips_T, keys_T))
+    return params, opt_state, out
+
+
+class _Static:
+    """Wraps :class:`BonePositions` so ``jit`` can take it as a static argument (by identity of
+    its values)."""
+
+    def __init__(self, bones: BonePositions):
+        self.bones = bones
+        self._key = (bones.start, bones.parents, bones.scale.tobytes(), bones.offset.tobytes())
+
+    def __hash__(self):
+        return hash(self._key)
+
+    def __eq__(self, other):
+        return isinstance(other, _Static) and self._key == other._key
+
+
+def _bones(b):
+    return b.bones if isinstance(b, _Static) else b
+
+
+def _device_arrays(data: StyleData):
+    return tuple(jnp.asarray(a) for a in (data.x, data.y, data.gate, data.clips))
+
+
+def epoch_batches(data: StyleData, config: LPNTrainConfig, epoch: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One epoch: ``(steps, batch)`` rows (one style per batch, round robin), ``(steps,)`` style of
+    each batch and ``(steps,)`` a random training clip of that style."""
+    seed = config.seed * 100_003 + epoch
+    batches = balanced_batches(data.train_rows, config.batch_size, seed=seed)
+    styles = np.tile(np.arange(len(data.styles)), len(batches) // len(data.styles)).astype(np.int32)
+    rng = np.random.default_rng([config.seed, epoch, 7])
+    clips = np.array([rng.choice(data.train_clips[s]) for s in styles], dtype=np.int32)
+    return batches.astype(np.int32), styles, clips
+
+
+def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None = None, *, progress: bool = True,
+          stop_after_epochs: int | None = None) -> dict:
+    """Train (or resume) a style model; returns ``{"params", "opt_state", "epoch"}``.
+
+    ``directory`` keeps ``config.json``, orbax checkpoints (one per epoch, the last 3 kept) and
+    ``log.csv`` (train loss, MSE and BLL, validation MSE and BLL, seconds per epoch); a second call
+    with the same directory resumes from the last checkpoint. ``stop_after_epochs`` ends the call
+    early (to test resuming)."""
+    if config.model.num_styles != len(data.styles):
+        raise ValueError(f"the model has {config.model.num_styles} styles, the data {len(data.styles)}")
+    ckpt = Checkpointer(directory, {"train": config, "styles": list(data.styles)}) if directory else None
+    state = init_state(jax.random.PRNGKey(config.seed), config)
+    if ckpt is not None and ckpt.latest_step() is not None:
+        state = ckpt.restore(state)
+    start = int(state["epoch"])
+    arrays = _device_arrays(data)
+    bones = _Static(data.bones)
+    log_path = Path(directory) / "log.csv" if directory else None
+    if log_path is not None:
+        runlog.truncate_log(log_path, start)
+    params, opt_state = state["params"], state["opt_state"]
+    done = 0
+    for epoch in range(start, config.epochs):
+        if stop_after_epochs is not None and done >= stop_after_epochs:
+            break
+        t0 = time.perf_counter()
+        batches, styles, clips = epoch_batches(data, config, epoch)
+        keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(config.seed), epoch), len(batches))
+        bar = runlog.progress_bar(len(batches), f"epoch {epoch + 1}/{config.epochs}", progress)
+        parts = []
+        for a in range(0, len(batches), config.log_every):
+            b = min(a + config.log_every, len(batches))
+            params, opt_state, out = _train_chunk(
+                params, opt_state, arrays, jnp.asarray(batches[a:b]), jnp.asarray(styles[a:b]),
+                jnp.asarray(clips[a:b]), keys[a:b], jnp.float32(config.dropout_rate),
+                jnp.float32(config.bone_loss_weight), config=config.model, bones=bones,
+                learning_rate=config.learning_rate)
+            parts.append(np.asarray(out))
+            if bar is not None:
+                bar.update(b - a)
+                bar.set_postfix(loss=f"{float(parts[-1][:, 0].mean()):.4f}")
+        if bar is not None:
+            bar.close()
+        out = np.concatenate(parts)
+        if not np.isfinite(out).all():
+            raise FloatingPointError(f"training loss became non-finite in epoch {epoch + 1}")
+        state = {"params": params, "opt_state": opt_state, "epoch": jnp.asarray(epoch + 1, jnp.int32)}
+        if ckpt is not None:
+            val = evaluate(params, config.model, data, "validation")
+            ckpt.save(epoch + 1, state)
+            runlog.append_log(log_path, {
+                "epoch": epoch + 1, "train_loss": f"{out[:, 0].mean():.6f}", "train_mse": f"{out[:, 1].mean():.6f}",
+                "train_bll": f"{out[:, 2].mean():.6f}", "val_mse": f"{np.nanmean(val['mse']):.6f}",
+                "val_bll": f"{np.nanmean(val['bll']):.6f}", "seconds": f"{time.perf_counter() - t0:.2f}"})
+        done += 1
+    if ckpt is not None:
+        ckpt.close()
+    return state
+
+
+def load(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str]) -> dict:
+    """The last checkpoint of a :func:`train` run folder."""
+    ckpt = Checkpointer(directory, {"train": config, "styles": list(styles)})
+    try:
+        return ckpt.restore(init_state(jax.random.PRNGKey(config.seed), config))
+    finally:
+        ckpt.close()
+
+
+# --- testing ------------------------------------------------------------------------------------
+
+@functools.partial(jax.jit, static_argnames=("config", "bones"))
+def _eval_chunk(params, x, y, gate, style, *, config, bones):
+    pred = style_models.model_apply(params, config, x, gate, style)
+    n = len(x)
+    mse = jnp.sum(jnp.mean(jnp.square(pred - y), axis=1))
+    bll = lpn.bone_length_loss(positions_m(pred, _bones(bones)), positions_m(y, _bones(bones)), _bones(bones).parents)
+    return mse, bll * n
+
+
+def film_vectors(params: dict, data: StyleData) -> np.ndarray:
+    """``(S, 2048)`` each style's FiLM vector: the mean over its training clips (dropout off)."""
+    gen = params["style"]["generator"]
+    return np.stack([film.clip_films(gen, data.clips[c]).mean(axis=0) for c in data.train_clips])
+
+
+def evaluate(params: dict, config: StyleModelConfig, data: StyleData, split: str = "test", *,
+             styles: Sequence[int] | None = None, vectors: np.ndarray | None = None,
+             chunk: int = 2048) -> dict[str, np.ndarray]:
+    """``{"mse", "bll"}`` per style (NaN without rows) on ``split``'s rows, dropout off. A FiLM
+    model uses ``vectors`` (default :func:`film_vectors`); style ``s`` of the data is style ``s``
+    of a one-hot or adapter model."""
+    rows_per_style = {"train": data.train_rows, "validation": data.val_rows, "test": data.test_rows}[split]
+    styles = range(len(data.styles)) if styles is None else styles
+    if config.modulation == "film" and vectors is None:
+        vectors = film_vectors(params, data)
+    bones = _Static(data.bones)
+    mse, bll = [], []
+    for s in styles:
+        rows = rows_per_style[s]
+        st = vectors[s] if config.modulation == "film" else style_models.style_runtime(params, config, s)
+        total = np.zeros(2)
+        for a in range(0, len(rows), chunk):
+            r = rows[a:a + chunk]
+            total += np.array(_eval_chunk(params, data.x[r], data.y[r], data.gate[r], st, config=config, bones=bones))
+        mse.append(total[0] / len(rows) if len(rows) else np.nan)
+        bll.append(total[1] / len(rows) if len(rows) else np.nan)
+    return {"mse": np.array(mse), "bll": np.array(bll)}
+
+
+# --- new styles: fine-tune the FiLM generator ---------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class FiLMFinetuneConfig:
+    """Fine-tuning of the FiLM generator on new styles, every style x dropout rate in one program."""
+
+    epochs: int = 10
+    batch_size: int = 32
+    learning_rate: float = 1e-4
+    rates: tuple[float, ...] = (0.1, 0.3, 0.5)
+    bone_loss_weight: float = 1.0
+    max_steps: int | None = None
+    seed: int = 0
+
+
+def finetune_batches(data: StyleData, config: FiLMFinetuneConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(S, T, B)`` rows, ``(S, T)`` clips and ``(S, T)`` masks for every style of ``data``: the
+    few-shot sweep's per-style batches (:func:`jaxstyle.mason2018.fewshot.sweep_batches`), capped at
+    ``max_steps``, with one random training clip of the style per step."""
+    batches, mask = fewshot.sweep_batches(data.train_rows, config.epochs, config.batch_size, config.seed)
+    if config.max_steps is not None:
+        batches, mask = batches[:, :config.max_steps], mask[:, :config.max_steps]
+    clips = np.stack([np.random.default_rng([config.seed, s, 11]).choice(c, size=batches.shape[1])
+                      for s, c in enumerate(data.train_clips)]).astype(np.int32)
+    return batches, clips, mask
+
+
+@functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate"), donate_argnums=(1, 2))
+def _film_grid(frozen, generators_SxR, opt_SxR, arrays, batches_SxTxB, clips_SxT, mask_SxT, keys_SxRxT, rates_R,
+               weight, *, config, bones, learning_rate):
+    """One chunk of steps of every (style, rate) pair: vmap over styles of vmap over rates of
+    :func:`jaxstyle.mason2018.fewshot.train_scan`; the frozen network is closed over (broadcast)."""
+    def pair(gen, opt, keys_T, rate, batches, clips, mask):
+        def loss_fn(g, inputs, key):
+            idx, clip = inputs
+            params = {**frozen, "style": {"generator": g}}
+            return batch_loss(params, config, arrays, idx, 0, clip, key, rate, _bones(bones), weight)[0]
+
+        return fewshot.train_scan(loss_fn, gen, opt, (batches, clips), mask, keys_T, learning_rate=learning_rate)
+
+    over_rates = jax.vmap(pair, in_axes=(0, 0, 0, 0, None, None, None))
+    over_styles = jax.vmap(over_rates, in_axes=(0, 0, 0, None, 0, 0, 0))
+    return over_styles(generators_SxR, opt_SxR, keys_SxRxT, rates_R, batches_SxTxB, clips_SxT, mask_SxT)
+
+
+def finetune_film_sweep(params: dict, config: StyleModelConfig, data: StyleData,
+                        finetune: FiLMFinetuneConfig = FiLMFinetuneConfig(), *, chunk_steps: int | None = None,
+                        progress: bool = False) -> tuple[dict, np.ndarray]:
+    """Fine-tune the FiLM generator on every style of ``data`` (new styles, normalised with the
+    base statistics) at every rate of ``finetune.rates``, the synthesis network and gating frozen
+    (closed over, broadcast to all pairs; gradients for the generator only). Returns generators
+    stacked ``(S, R, ...)`` and per-step losses ``(S, R, T)`` (NaN on padded steps). Keys depend
+    only on the seed, the style's index and the rate's index, as in the 2018 sweep.
+
+    ``chunk_steps`` runs the steps in chunks (one compiled program, called once per chunk, the
+    last chunk padded with masked steps) so ``progress=True`` can move a bar; same result."""
+    if config.modulation != "film":
+        raise ValueError(f"fine-tuning the FiLM generator needs a FiLM model, got {config.modulation!r}")
+    batches, clips, mask = finetune_batches(data, finetune)
+    num_styles, num_rates, steps = batches.shape[0], len(finetune.rates), batches.shape[1]
+    chunk = steps if chunk_steps is None else max(1, min(int(chunk_steps), steps))
+    total = -(-steps // chunk) * chunk
+    pad = ((0, 0), (0, total - steps))
+    batches = np.pad(batches, pad + ((0, 0),))
+    clips, mask = np.pad(clips, pad), np.pad(mask, pad)
+    keys = jnp.stack([jnp.stack([jax.random.split(fewshot.pair_key(finetune.seed, s, r), steps)
+                                 for r in range(num_rates)]) for s in range(num_styles)])
+    keys = jnp.pad(keys, ((0, 0), (0, 0), (0, total - steps), (0, 0)))
+    frozen = {k: v for k, v in params.items() if k != "style"}
+    gens = jax.tree.map(lambda v: jnp.broadcast_to(v, (num_styles, num_rates) + v.shape).copy(),
+                        params["style"]["generator"])
+    opt = jax.vmap(jax.vmap(optax.adam(finetune.learning_rate).init))(gens)
+    arrays, rates = _device_arrays(data), jnp.asarray(finetune.rates, jnp.float32)
+    bar = runlog.progress_bar(steps, f"FiLM fine-tuning {num_styles} styles x {num_rates} rates", progress)
+    per_step = []
+    for a in range(0, total, chunk):
+        b = a + chunk
+        gens, opt, out = _film_grid(frozen, gens, opt, arrays, jnp.asarray(batches[:, a:b]),
+                                    jnp.asarray(clips[:, a:b]), jnp.asarray(mask[:, a:b]), keys[:, :, a:b], rates,
+                                    jnp.float32(finetune.bone_loss_weight), config=config,
+                                    bones=_Static(data.bones), learning_rate=finetune.learning_rate)
+        per_step.append(np.asarray(out))
+        if bar is not None:
+            bar.update(min(b, steps) - a)
+            bar.set_postfix(loss=f"{float(np.nanmean(per_step[-1])):.4f}")
+    if bar is not None:
+        bar.close()
+    return gens, np.concatenate(per_step, axis=2)[:, :, :steps]
+
+
+def with_generator(params: dict, generators: dict, style: int, rate: int) -> dict:
+    """``params`` with the fine-tuned generator of one (style, rate) pair of the sweep."""
+    return {**params, "style": {"generator": jax.tree.map(lambda v: v[style, rate], generators)}}

@@ -1,0 +1,216 @@
+"""Drive styled characters along user paths and write what they did: GIF, BVH, quality figures.
+
+The runtime of Mason et al. 2018 section 7.1 (the PFNN with a style's residual adapter in the
+loop) for several (style, path) characters at once: every character is generated in ONE batched,
+jitted ``lax.scan`` (:func:`jaxstyle.control.controller.rollout_batch`, base weights broadcast), each
+starting from a real pose of its own style chosen to match the requested speed. Then, per path, a
+GIF with the styles side by side (:mod:`jaxstyle.output.preview`), per (style, path) a BVH (feet pinned
+with the 2022 paper's section 4.4 IK when ``foot_ik``) and an ``.npz`` (:mod:`jaxstyle.output.export`),
+and a table of :mod:`jaxstyle.output.metrics` figures beside those of real motion of each style.
+
+Used by ``jaxstyle synthesize`` / ``jaxstyle demo`` (:mod:`jaxstyle.cli`).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import time
+from pathlib import Path
+from typing import NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxstyle.control import controller, paths
+from jaxstyle.data import datasets
+from jaxstyle.data.normalise import Normaliser
+from jaxstyle.labels.contacts import estimate_units_per_meter
+from jaxstyle.motion import Motion
+from jaxstyle.motion.kinematics import global_positions
+from jaxstyle.nn import pfnn
+from jaxstyle.output import export, metrics, preview
+
+
+class Character(NamedTuple):
+    """One style to drive: its ``title`` (GIF panels, tables), a file-safe ``label``, its PFNN
+    ``adapter``, and the ``dataset`` + ``style`` whose rows give its start pose and own speed."""
+
+    title: str
+    label: str
+    adapter: dict
+    dataset: datasets.Dataset
+    style: str
+
+
+@dataclasses.dataclass
+class SynthesisResult:
+    """``rows``: one :class:`jaxstyle.output.metrics.MotionQuality` row per (character, path) and per real
+    clip; ``files``: everything written; ``seconds``: rollout time (compiled) and ``frames``."""
+
+    rows: list[dict]
+    files: list[Path]
+    seconds: float
+    frames: int
+    speeds: dict[str, float]
+
+
+def style_rows(dataset: datasets.Dataset, style: str, gait: str = "FW") -> np.ndarray:
+    """Training rows of ``style``, only those of its ``gait`` clips when it has some."""
+    rows = dataset.rows_of_style(style, "train")
+    if len(rows) == 0:
+        rows = dataset.rows_of_style(style)
+    same = np.array([dataset.specs[c].gait == gait for c in dataset.clip[rows]], dtype=bool)
+    return rows[same] if same.any() else rows
+
+
+def own_speed(dataset: datasets.Dataset, rows: np.ndarray, units_per_meter: float, fps: float = 60.0) -> float:
+    """The median ground speed (m/s) of the character over ``rows`` (its per-frame root motion)."""
+    step = dataset.outputs[rows, :2]  # root velocity, units per frame, in the character frame
+    return float(np.median(np.linalg.norm(step, axis=1)) * fps / units_per_meter)
+
+
+def _stack(items):
+    return jax.tree.map(lambda *v: jnp.stack(v), *items)
+
+
+def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], characters: Sequence[Character],
+               skeleton: Motion, out: str | Path, *, path_names: Sequence[str] = ("circle",), seconds: float = 8.0,
+               speed: float | None = None, foot_ik: bool = False, gif: bool = True, mp4: bool = False,
+               every: int = 2, contact_sheet: bool = False, reference: bool = True,
+               progress: bool = False) -> SynthesisResult:
+    """Drive every character along every path and write the results under ``out``.
+
+    Args:
+      params, normalisers: the base PFNN and its (input, output) statistics.
+      characters: the styles (:class:`Character`); CP adapters of different ranks are padded to
+        the largest (:func:`jaxstyle.nn.pfnn.pad_rank`), which changes nothing they compute.
+      skeleton: a clip of the training skeleton (bone lengths, fps, units).
+      path_names: any of :data:`jaxstyle.control.paths.PATHS`; ``seconds`` long each.
+      speed: m/s for every character; ``None``: each walks at its style's own median speed.
+      foot_ik: pin the feet in contact in the BVH files; ``gif``/``mp4``: write animations
+        (``mp4`` needs ffmpeg); ``every``: draw every n-th frame of the animations;
+        ``contact_sheet``: a PNG strip of 6 frames of the first path.
+      reference: add the quality figures of one real clip per style to the table.
+
+    Writes ``<path>.gif`` per path, ``bvh/<label>_<path>.bvh`` and ``.npz`` per character and
+    path, ``contact_sheet.png`` if asked, and ``quality.csv``.
+    """
+    if not characters:
+        raise ValueError("no characters to drive")
+    unknown = [p for p in path_names if p not in paths.PATHS]
+    if unknown or not path_names:
+        raise KeyError(f"unknown path(s) {unknown}; known: {', '.join(paths.PATHS)}")
+    if seconds <= 0:
+        raise ValueError(f"seconds must be positive, got {seconds}")
+    out = Path(out)
+    x_norm, y_norm = normalisers
+    upm = estimate_units_per_meter(skeleton)
+    fps = skeleton.fps
+    adapters = [c.adapter for c in characters]
+    if pfnn.adapter_kind(adapters[0]) == "cp":
+        rank = max(a["A"].shape[0] for a in adapters)
+        adapters = [pfnn.pad_rank(a, rank) for a in adapters]
+    starts, speeds = [], []
+    for c in characters:
+        rows = style_rows(c.dataset, c.style)
+        v = own_speed(c.dataset, rows, upm, fps) if speed is None else float(speed)
+        row = controller.start_row(c.dataset.inputs, v, units_per_meter=upm, rows=rows, fps=fps)
+        starts.append(controller.initial_state(c.dataset.inputs[row], float(c.dataset.phases[row, 0]),
+                                               skeleton.num_joints))
+        speeds.append(v)
+    pairs = [(s, p) for s in range(len(characters)) for p in path_names]
+    signals = [paths.named(p, seconds, speeds[s], units_per_meter=upm, fps=fps) for s, p in pairs]
+    args = (params, _stack([adapters[s] for s, _ in pairs]), x_norm, y_norm, _stack([starts[s] for s, _ in pairs]),
+            _stack([controller.signal_controls(sig) for sig in signals]))
+    jax.block_until_ready(controller.rollout_batch(*args))  # compile
+    t0 = time.perf_counter()
+    rollouts = jax.block_until_ready(controller.rollout_batch(*args))
+    elapsed = time.perf_counter() - t0
+
+    out.mkdir(parents=True, exist_ok=True)
+    files, rows = [], []
+    titles = [c.title for c in characters]
+    for p in path_names:
+        idx = [k for k, (_, q) in enumerate(pairs) if q == p]
+        chars = [np.asarray(rollouts.positions[k]) for k in idx]
+        path_xz = [signals[k].positions for k in idx]
+        kwargs = dict(titles=titles, paths=path_xz, units_per_meter=upm, every=every, progress=progress)
+        if gif:
+            files.append(preview.render_gif(out / f"{p}.gif", chars, skeleton.parents, fps, **kwargs))
+        if mp4:
+            files.append(preview.render_mp4(out / f"{p}.mp4", chars, skeleton.parents, fps, **kwargs))
+        if contact_sheet and p == path_names[0]:
+            files.append(preview.contact_sheet(out / "contact_sheet.png", chars, skeleton.parents, frames=6,
+                                               titles=titles, paths=path_xz, units_per_meter=upm, fps=fps))
+    for k, (s, p) in enumerate(pairs):
+        one = jax.tree.map(lambda v, k=k: v[k], rollouts)
+        c = characters[s]
+        q = metrics.motion_quality(np.asarray(one.positions), skeleton, fps, units_per_meter=upm,
+                                   path_Tx2=signals[k].positions)
+        row = {"style": c.title, "path": p, **q.as_row()}
+        if np.isfinite(np.asarray(one.outputs)).all():
+            motion = export.rollout_motion(one, skeleton)
+            if foot_ik:
+                fixed = export.fix_feet(motion, one)
+                row["foot_skating_before_ik_m_s"], row["foot_skating_after_ik_m_s"] = (
+                    metrics.foot_skating(global_positions(m), skeleton, fps, units_per_meter=upm)
+                    for m in (motion, fixed))
+                motion = fixed
+            files += export.save_rollout(out / "bvh" / f"{c.label}_{p}", one, skeleton, motion=motion).values()
+        rows.append(row)
+    if reference:
+        seen = set()
+        for c in characters:
+            key = (id(c.dataset), c.style)
+            if key in seen:
+                continue
+            seen.add(key)
+            spec = c.dataset.specs[int(c.dataset.clip[style_rows(c.dataset, c.style)[0]])]
+            q = metrics.reference_quality(datasets.load_clip(spec, fps=fps), units_per_meter=upm)
+            rows.append({"style": c.title, "path": f"real ({Path(spec.path).name})", **q.as_row()})
+    files.append(write_quality(rows, out / "quality.csv"))
+    return SynthesisResult(rows, files, elapsed, len(pairs) * int(rollouts.positions.shape[1]),
+                           dict(zip(titles, speeds, strict=True)))
+
+
+def write_quality(rows: list[dict], path: Path) -> Path:
+    """The quality rows as CSV (columns: the union of the rows' keys, blank where absent)."""
+    fields = list(dict.fromkeys(k for r in rows for k in r))
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields, restval="")
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def quality_table(rows: list[dict]) -> list[str]:
+    """Markdown lines of the main quality figures, and of the foot IK's effect when it was applied."""
+    lines = ["| style | path | skating m/s | feet on floor | bone error mean / max | path error mean / final m "
+             "| jitter m/s^3 |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['style']} | {r['path']} | {r['foot_skating_m_s']:.2f} | {r['contact_fraction']:.2f} "
+                     f"| {100 * r['bone_error_mean']:.1f}% / {100 * r['bone_error_max']:.0f}% "
+                     f"| {r['path_error_mean_m']:.2f} / {r['path_error_final_m']:.2f} | {r['jitter_m_s3']:.0f} |")
+    ik = [r for r in rows if r.get("foot_skating_before_ik_m_s") not in (None, "")]
+    if ik:
+        lines += ["", "foot-contact IK on the exported BVH (skating of the decoded motion, m/s; the table above "
+                  "measures the network's own joint positions):", "", "| style | path | before IK | after IK |",
+                  "|---|---|---|---|"]
+        lines += [f"| {r['style']} | {r['path']} | {r['foot_skating_before_ik_m_s']:.2f} "
+                  f"| {r['foot_skating_after_ik_m_s']:.2f} |" for r in ik]
+    return lines
+
+
+def blend_character(a: Character, b: Character, weights: Sequence[float] = (0.5, 0.5)) -> Character:
+    """A character in a blend of two styles' adapters (:func:`jaxstyle.nn.pfnn.blend_adapters`: exact for
+    CP adapters, whose ranks add), starting like ``a``."""
+    pair = [a.adapter, b.adapter]
+    if pfnn.adapter_kind(a.adapter) == "cp":
+        rank = max(x["A"].shape[0] for x in pair)
+        pair = [pfnn.pad_rank(x, rank) for x in pair]
+    stacked = jax.tree.map(lambda *v: jnp.stack(v), *pair)
+    w = np.asarray(weights, dtype=np.float64)
+    name = " + ".join(f"{100 * wi:.0f}% {c.label}" for wi, c in zip(w, (a, b), strict=True))
+    return Character(name, f"blend_{a.label}_{b.label}", pfnn.blend_adapters(stacked, w), a.dataset, a.style)
