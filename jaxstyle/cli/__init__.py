@@ -699,6 +699,7 @@ def cmd_bench(args, run: Run) -> None:
     from jaxstyle.mason2018 import fewshot
     from jaxstyle.nn import pfnn
     from jaxstyle.timing import time_call
+    from jaxstyle.train import scan
 
     _check_positive(args, "sets", "frames", "sweep_epochs", "hidden")
     if (run.dir / "base" / "base.json").is_file():
@@ -718,14 +719,14 @@ def cmd_bench(args, run: Run) -> None:
     phase = jnp.asarray(rng.random(n), jnp.float32)
     rows = [np.arange(s * args.frames, (s + 1) * args.frames) for s in range(args.sets)]
     config = fewshot.SweepConfig(model=model, epochs=args.sweep_epochs, rates=tuple(args.rates))
-    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
 
     def sweep():
         return fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
 
     def loop():
         return [fewshot.finetune_one(params, x, y, phase, batches[s], mask[s], rate,
-                                     fewshot.pair_key(config.seed, s, r), config)[0]
+                                     scan.pair_key(config.seed, s, r), config)[0]
                 for s in range(args.sets) for r, rate in enumerate(config.rates)]
 
     timings = {}
@@ -837,8 +838,3 @@ def main(argv: Sequence[str] | None = None) -> int:
 def entry_point() -> None:
     """The console script."""
     sys.exit(main())
-
-
-if __name__ == "__main__":
-    entry_point()
-
