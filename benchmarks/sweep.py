@@ -35,6 +35,7 @@ import numpy as np
 
 from jaxstyle.mason2018 import fewshot
 from jaxstyle.nn import pfnn
+from jaxstyle.train import scan
 
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
                   "/jax/core/compile/backend_compile_duration")
@@ -125,7 +126,7 @@ def measure(mode: str, model, x, y, phase, rows, rates, epochs) -> dict:
     config = fewshot.SweepConfig(model=model, epochs=epochs, rates=tuple(rates),
                                  adapter_dropout_only=mode.startswith("adapter"),
                                  matmul_dtype="bfloat16" if mode.endswith("bf16") else "float32")
-    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), model)
     pairs = len(rows) * len(rates)
     _compile_seconds[0] = 0.0
@@ -138,11 +139,11 @@ def measure(mode: str, model, x, y, phase, rows, rates, epochs) -> dict:
         for s in range(len(rows)):
             for r, rate in enumerate(rates):
                 out.append(fewshot.finetune_one(params, x, y, phase, batches[s], mask[s], rate,
-                                                fewshot.pair_key(config.seed, s, r), config)[0])
+                                                scan.pair_key(config.seed, s, r), config)[0])
         return out
 
     jax.block_until_ready(fewshot.finetune_one(params, x, y, phase, batches[0], mask[0], rates[0],
-                                               fewshot.pair_key(0, 0, 0), config))  # compile the single run
+                                               scan.pair_key(0, 0, 0), config))  # compile the single run
     loop_s = timed(loop)
     steps = batches.shape[1]
     flops = sweep_flops(model, pairs * config.batch_size, config.adapter_dropout_only) * steps

@@ -92,7 +92,7 @@ _NAMES = {
     "scale": "motion.transform",
     "set_up_axis": "motion.transform",
     "skeleton_height": "motion.kinematics",
-    "sweep_batches": "mason2018.fewshot",
+    "sweep_batches": "train.scan",
     "turning_path": "control.controller",
     "write_bvh": "motion.bvh",
     "write_report": "mason2018.selection",

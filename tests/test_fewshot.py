@@ -11,6 +11,7 @@ import pytest
 
 from jaxstyle.mason2018 import fewshot
 from jaxstyle.nn import pfnn
+from jaxstyle.train import scan
 
 SMALL = pfnn.PFNNConfig(input_size=6, hidden_size=16, output_size=5, rank=4)
 
@@ -29,7 +30,7 @@ def _data(seed=0):
 
 def test_sweep_batches_are_ragged_with_masks():
     _, _, _, rows = _data()
-    batches, mask = fewshot.sweep_batches(rows, epochs=3, batch_size=16)
+    batches, mask = scan.sweep_batches(rows, epochs=3, batch_size=16)
     assert batches.shape == (3, 3 * (70 // 16), 16)
     np.testing.assert_array_equal(mask.sum(1), [3 * 4, 3 * 2, 3 * 1])
     for s in range(3):
@@ -40,7 +41,7 @@ def _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, a
     """The sweep's adapter of pair (s, r) equals :func:`finetune_one` with the same key and data
     order (relative difference <= 1e-4); returns the single run's per-step losses."""
     single, single_losses = fewshot.finetune_one(params, x, y, phase, batches[s], mask[s], config.rates[r],
-                                                 fewshot.pair_key(config.seed, s, r), config)
+                                                 scan.pair_key(config.seed, s, r), config)
     for got, want in zip(jax.tree.leaves(adapters), jax.tree.leaves(single), strict=True):
         scale = np.abs(np.asarray(want)).max() + 1e-12
         assert np.abs(np.asarray(got[s, r]) - np.asarray(want)).max() / scale <= 1e-4
@@ -51,7 +52,7 @@ def test_vmapped_sweep_equals_single_runs():
     x, y, phase, rows = _data()
     config = fewshot.SweepConfig(model=SMALL, epochs=4, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.3, 0.6))
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
-    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
     adapters, losses = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
     assert losses.shape == (3, 3, batches.shape[1])
     for s in range(3):
@@ -67,7 +68,7 @@ def test_sweep_lowers_the_training_loss_and_leaves_the_base_alone():
     config = fewshot.SweepConfig(model=SMALL, epochs=30, batch_size=8, learning_rate=1e-2, rates=(0.0,))
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
     before = jax.tree.map(np.asarray, params)
-    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
     _, losses = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
     first, last = np.asarray(losses[:, 0, :2]).mean(), np.nanmean(np.asarray(losses[0, 0, -5:]))
     assert last < 0.8 * first
@@ -98,7 +99,7 @@ def test_adapter_dropout_only_mode_matches_its_definition():
     full = jnp.mean((pfnn.pfnn_apply(params, x[idx], phase[idx], adapter=adapter) - y[idx]) ** 2)
     np.testing.assert_allclose(no_drop, full, rtol=1e-5)
 
-    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
     adapters, _ = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
     _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, 1, 1)
 
@@ -121,7 +122,7 @@ def test_sharded_grid_matches_one_device():
         x, y, phase, rows = _data()
         config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.5))
         params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
-        b, m = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+        b, m = scan.sweep_batches(rows, config.epochs, config.batch_size)
         one, _ = fewshot.finetune_sweep(params, x, y, phase, b, m, config)
         two, _ = fewshot.finetune_sweep(params, x, y, phase, b, m, config, shard=True)  # 3 styles padded to 4
         for a, c in zip(jax.tree.leaves(one), jax.tree.leaves(two)):
@@ -159,7 +160,7 @@ def test_bfloat16_sweep_equals_its_single_runs():
     config = fewshot.SweepConfig(model=SMALL, epochs=2, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.5),
                                  matmul_dtype="bfloat16")
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
-    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
     adapters, _ = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
     _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, 2, 1)
     with pytest.raises(ValueError, match="matmul_dtype"):
@@ -173,7 +174,7 @@ def test_sweep_with_full_and_diagonal_adapters_equals_single_runs(kind):
     x, y, phase, rows = _data(2)
     config = fewshot.SweepConfig(model=model, epochs=2, batch_size=16, learning_rate=3e-3, rates=(0.2, 0.6))
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), model)
-    batches, mask = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
     adapters, losses = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
     assert pfnn.adapter_kind(jax.tree.map(lambda v: v[0, 0], adapters)) == kind
     assert np.isfinite(np.asarray(losses[:, :, 0])).all()

@@ -322,7 +322,7 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
     assert per_step.shape == (2, 2, 16) and np.isfinite(per_step).all()
     # style 1, rate index 1, run alone through the same scan: the sweep is a vmap of single runs
     batches, clips, mask = train_lpn.finetune_batches(data, ft)
-    keys = jax.random.split(train_lpn.fewshot.pair_key(ft.seed, 1, 1), batches.shape[1])
+    keys = jax.random.split(train_lpn.scan.pair_key(ft.seed, 1, 1), batches.shape[1])
     frozen = {k: v for k, v in params.items() if k != "style"}
     arrays = train_lpn._device_arrays(data)
 
@@ -332,7 +332,7 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
                                     jnp.float32(0.3), data.bones, jnp.float32(1.0))[0]
 
     gen0 = params["style"]["generator"]
-    one, _, losses = jax.jit(lambda g: train_lpn.fewshot.train_scan(
+    one, _, losses = jax.jit(lambda g: train_lpn.scan.train_scan(
         loss_fn, g, optax.adam(1e-3).init(g), (jnp.asarray(batches[1]), jnp.asarray(clips[1])),
         jnp.asarray(mask[1]), keys, learning_rate=1e-3))(gen0)
     np.testing.assert_allclose(per_step[1, 1], losses, rtol=2e-5, atol=1e-6)

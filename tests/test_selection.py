@@ -14,6 +14,7 @@ from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
 from jaxstyle.mason2018 import fewshot, selection
 from jaxstyle.nn import pfnn
+from jaxstyle.train import scan
 from tests.test_fewshot import SMALL, _data
 
 
@@ -37,8 +38,8 @@ def test_adding_a_style_leaves_the_others_unchanged():
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
     two = [rows[1], rows[2]]
     three = two + [rows[0]]  # the new style is the longest: more (masked) steps for the others
-    b2, m2 = fewshot.sweep_batches(two, config.epochs, config.batch_size)
-    b3, m3 = fewshot.sweep_batches(three, config.epochs, config.batch_size)
+    b2, m2 = scan.sweep_batches(two, config.epochs, config.batch_size)
+    b3, m3 = scan.sweep_batches(three, config.epochs, config.batch_size)
     assert b3.shape[1] > b2.shape[1]
     before, _ = fewshot.finetune_sweep(params, x, y, phase, b2, m2, config)
     after, _ = fewshot.finetune_sweep(params, x, y, phase, b3, m3, config)
@@ -54,7 +55,7 @@ def test_chunked_sweep_equals_one_call():
     x, y, phase, rows = _data(3)
     config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.2, 0.5))
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
-    b, m = fewshot.sweep_batches(rows, config.epochs, config.batch_size)
+    b, m = scan.sweep_batches(rows, config.epochs, config.batch_size)
     whole, lw = fewshot.finetune_sweep(params, x, y, phase, b, m, config)
     chunked, lc = fewshot.finetune_sweep(params, x, y, phase, b, m, config, chunk_steps=5)  # 12 steps: 5 + 5 + 2
     for p, q in zip(jax.tree.leaves(whole), jax.tree.leaves(chunked), strict=True):

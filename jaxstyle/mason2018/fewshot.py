@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -32,6 +31,7 @@ import optax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxstyle.nn import pfnn
+from jaxstyle.train.scan import pair_key, train_scan
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,33 +68,6 @@ class SweepConfig:
             raise ValueError(f"matmul_dtype must be 'float32' or 'bfloat16', got {self.matmul_dtype!r}")
 
 
-def sweep_batches(rows_per_style: Sequence[np.ndarray], epochs: int, batch_size: int, seed: int = 0
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """``(S, T, B)`` row indices and ``(S, T)`` step masks: each style's rows shuffled every epoch,
-    ``max(1, rows // B)`` batches per epoch (a style smaller than a batch is sampled with
-    replacement), padded to the longest style with masked steps."""
-    per_style = []
-    for s, rows in enumerate(rows_per_style):
-        rows = np.asarray(rows)
-        if len(rows) == 0:
-            raise ValueError(f"style {s} has no training rows")
-        rng = np.random.default_rng([seed, s])
-        per_epoch = max(len(rows) // batch_size, 1)
-        epochs_idx = []
-        for _ in range(epochs):
-            order = rng.permutation(rows)
-            if len(order) < batch_size:
-                order = rng.choice(rows, size=batch_size, replace=True)
-            epochs_idx.append(order[:per_epoch * batch_size].reshape(per_epoch, batch_size))
-        per_style.append(np.concatenate(epochs_idx))
-    steps = max(len(b) for b in per_style)
-    batches = np.zeros((len(per_style), steps, batch_size), dtype=np.int32)
-    mask = np.zeros((len(per_style), steps), dtype=bool)
-    for s, b in enumerate(per_style):
-        batches[s, :len(b)], mask[s, :len(b)] = b, True
-    return batches, mask
-
-
 def frozen_activations(params: dict, x, phase) -> dict:
     """Per-frame quantities of the frozen base that no adapter-path dropout mask changes: the
     spline weights ``w (N, 4)``, ``h1 (N, H)`` and the middle layer's main-path pre-activation
@@ -120,27 +93,6 @@ def _pair_loss(params, adapter, x, y, phase, idx, key, rate, lambda_s, cache):
     return jnp.mean((pred - y[idx]) ** 2) + lambda_s * pfnn.l1_penalty(adapter)
 
 
-def train_scan(loss_fn, trainable, opt_state, inputs_T, mask_T, keys_T, *, learning_rate: float):
-    """Adam steps as one ``lax.scan``: step ``t`` takes the gradient of
-    ``loss_fn(trainable, inputs_T[t], keys_T[t])`` with respect to ``trainable`` alone (whatever
-    else the loss uses is closed over, i.e. frozen); masked steps (``mask_T[t]`` false) change
-    nothing. Returns the trained tree, the optimiser state and per-step losses (NaN when masked).
-    The sweeps of this module and :mod:`jaxstyle.mason2022.train` vmap this function over their grids."""
-    optimiser = optax.adam(learning_rate)
-
-    def step(carry, inputs):
-        a, opt = carry
-        step_inputs, real, k = inputs
-        value, grads = jax.value_and_grad(loss_fn)(a, step_inputs, k)
-        updates, new_opt = optimiser.update(grads, opt)
-        new_a = optax.apply_updates(a, updates)
-        keep = lambda new, old: jnp.where(real, new, old)  # noqa: E731
-        return (jax.tree.map(keep, new_a, a), jax.tree.map(keep, new_opt, opt)), jnp.where(real, value, jnp.nan)
-
-    (trainable, opt_state), losses = jax.lax.scan(step, (trainable, opt_state), (inputs_T, mask_T, keys_T))
-    return trainable, opt_state, losses
-
-
 def _train_pair(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, keys_T, rate, *, learning_rate,
                 lambda_s, cache=None):
     """Steps of one (style, rate) pair: :func:`train_scan` over ``batches_TxB`` with one PRNG key
@@ -149,11 +101,6 @@ def _train_pair(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, ke
         return _pair_loss(params, a, x, y, phase, idx, k, rate, lambda_s, cache)
 
     return train_scan(loss_fn, adapter, opt_state, batches_TxB, mask_T, keys_T, learning_rate=learning_rate)
-
-
-def pair_key(seed: int, style: int, rate_index: int) -> jax.Array:
-    """The PRNG key of one (style, rate) pair: its adapter's initial values and dropout masks."""
-    return jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), style), rate_index)
 
 
 def _init_pair(config: SweepConfig, key, num_steps: int):

@@ -57,6 +57,7 @@ from jaxstyle.mason2018.train import TrainData
 from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
+from jaxstyle.train import scan
 from jaxstyle.train.checkpoint import Checkpointer
 
 # --- 1. hold-out -----------------------------------------------------------------------------------
@@ -297,7 +298,7 @@ def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], data
                          f"dataset has {dataset.inputs.shape[1]} (a different skeleton?)")
     timings = {}
     data = fewshot_data(dataset, normalisers, styles, fps=fps, **(holdout or {}))
-    batches, mask = fewshot.sweep_batches(data.train_rows, config.epochs, config.batch_size, seed=config.seed)
+    batches, mask = scan.sweep_batches(data.train_rows, config.epochs, config.batch_size, seed=config.seed)
     t0 = time.perf_counter()
     adapters, losses = fewshot.finetune_sweep(params, jnp.asarray(data.x), jnp.asarray(data.y),
                                               jnp.asarray(data.phase), batches, mask, config,

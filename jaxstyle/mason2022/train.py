@@ -16,7 +16,7 @@
   each style's precomputed FiLM vector (the mean over its training clips, as at runtime).
 * :func:`finetune_film_sweep`: new styles by fine-tuning only the FiLM generator (LPN and gating
   frozen) for every (new style, dropout rate) pair in one compiled ``vmap`` x ``vmap`` of
-  :func:`jaxstyle.mason2018.fewshot.train_scan`, as the 2018 few-shot sweep.
+  :func:`jaxstyle.train.scan.train_scan`, as the 2018 few-shot sweep.
 """
 
 from __future__ import annotations
@@ -35,12 +35,11 @@ import optax
 from jaxstyle.data.batching import balanced_batches
 from jaxstyle.data.lpn_features import LPNLayout, bone_parents, end_effector_columns
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2018 import fewshot
 from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import lpn, style_models
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.train import runlog
+from jaxstyle.train import runlog, scan
 from jaxstyle.train.checkpoint import Checkpointer
 
 
@@ -347,9 +346,9 @@ class FiLMFinetuneConfig:
 
 def finetune_batches(data: StyleData, config: FiLMFinetuneConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(S, T, B)`` rows, ``(S, T)`` clips and ``(S, T)`` masks for every style of ``data``: the
-    few-shot sweep's per-style batches (:func:`jaxstyle.mason2018.fewshot.sweep_batches`), capped at
+    few-shot sweep's per-style batches (:func:`jaxstyle.train.scan.sweep_batches`), capped at
     ``max_steps``, with one random training clip of the style per step."""
-    batches, mask = fewshot.sweep_batches(data.train_rows, config.epochs, config.batch_size, config.seed)
+    batches, mask = scan.sweep_batches(data.train_rows, config.epochs, config.batch_size, config.seed)
     if config.max_steps is not None:
         batches, mask = batches[:, :config.max_steps], mask[:, :config.max_steps]
     clips = np.stack([np.random.default_rng([config.seed, s, 11]).choice(c, size=batches.shape[1])
@@ -361,14 +360,14 @@ def finetune_batches(data: StyleData, config: FiLMFinetuneConfig) -> tuple[np.nd
 def _film_grid(frozen, generators_SxR, opt_SxR, arrays, batches_SxTxB, clips_SxT, mask_SxT, keys_SxRxT, rates_R,
                weight, *, config, bones, learning_rate):
     """One chunk of steps of every (style, rate) pair: vmap over styles of vmap over rates of
-    :func:`jaxstyle.mason2018.fewshot.train_scan`; the frozen network is closed over (broadcast)."""
+    :func:`jaxstyle.train.scan.train_scan`; the frozen network is closed over (broadcast)."""
     def pair(gen, opt, keys_T, rate, batches, clips, mask):
         def loss_fn(g, inputs, key):
             idx, clip = inputs
             params = {**frozen, "style": {"generator": g}}
             return batch_loss(params, config, arrays, idx, 0, clip, key, rate, _bones(bones), weight)[0]
 
-        return fewshot.train_scan(loss_fn, gen, opt, (batches, clips), mask, keys_T, learning_rate=learning_rate)
+        return scan.train_scan(loss_fn, gen, opt, (batches, clips), mask, keys_T, learning_rate=learning_rate)
 
     over_rates = jax.vmap(pair, in_axes=(0, 0, 0, 0, None, None, None))
     over_styles = jax.vmap(over_rates, in_axes=(0, 0, 0, None, 0, 0, 0))
@@ -395,7 +394,7 @@ def finetune_film_sweep(params: dict, config: StyleModelConfig, data: StyleData,
     pad = ((0, 0), (0, total - steps))
     batches = np.pad(batches, pad + ((0, 0),))
     clips, mask = np.pad(clips, pad), np.pad(mask, pad)
-    keys = jnp.stack([jnp.stack([jax.random.split(fewshot.pair_key(finetune.seed, s, r), steps)
+    keys = jnp.stack([jnp.stack([jax.random.split(scan.pair_key(finetune.seed, s, r), steps)
                                  for r in range(num_rates)]) for s in range(num_styles)])
     keys = jnp.pad(keys, ((0, 0), (0, 0), (0, total - steps), (0, 0)))
     frozen = {k: v for k, v in params.items() if k != "style"}
