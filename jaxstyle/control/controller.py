@@ -28,13 +28,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control.paths import PathSignal
+from jaxstyle.control import loop
+from jaxstyle.control.loop import (  # noqa: F401
+    HISTORY,
+    SPACING,
+    Controls,
+    f32,
+    initial_ground,
+    normaliser_arrays,
+    path_controls,
+    rotate_xz,
+    signal_controls,
+    start_row,
+    trajectory_input,
+    turning_path,
+)
 from jaxstyle.data.normalise import Normaliser
-from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PAST_SAMPLES, PFNNLayout
+from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PFNNLayout
 from jaxstyle.nn import pfnn
-
-HISTORY = PAST_SAMPLES * 10 + 1  # ground frames t-60 .. t, at the 60 fps sample spacing of 10
-SPACING = 10
 
 
 class RolloutState(NamedTuple):
@@ -51,14 +62,6 @@ class RolloutState(NamedTuple):
     future: jax.Array
 
 
-class Controls(NamedTuple):
-    """Per frame ``t``: the user's path ``offsets (T, 6, 2)``, the ground displacement from frame
-    ``t`` to ``t + 10 k`` (k = 0 .. 5), global, and the desired facing yaw ``yaw (T, 6)`` there."""
-
-    offsets: jax.Array
-    yaw: jax.Array
-
-
 class Rollout(NamedTuple):
     """Per generated frame: global joint ``positions (T, J, 3)``, ground ``origin (T, 2)`` (x, z),
     ``yaw (T,)``, ``phase (T,)`` and the de-normalised network ``outputs (T, O)`` (which
@@ -69,89 +72,6 @@ class Rollout(NamedTuple):
     yaw: jax.Array
     phase: jax.Array
     outputs: jax.Array
-
-
-def rotate_xz(x, z, a):
-    """Ground vectors ``(x, z)`` rotated by yaw ``a`` (the convention of
-    :func:`jaxstyle.motion.character_frame.rotate_yaw`)."""
-    c, s = jnp.cos(a), jnp.sin(a)
-    return x * c + z * s, -x * s + z * c
-
-
-def path_controls(velocity_Tx2, yaw_T, fps: float = 60.0) -> Controls:
-    """:class:`Controls` from a desired ground velocity (units per second, global x and z) and
-    facing yaw (radians) per frame. Past the last frame the last values hold."""
-    v = np.asarray(velocity_Tx2, dtype=np.float64)
-    yaw = np.asarray(yaw_T, dtype=np.float64)
-    if v.ndim != 2 or v.shape[1] != 2 or yaw.shape != (len(v),):
-        raise ValueError(f"velocity must be (T, 2) and yaw (T,), got {v.shape} and {yaw.shape}")
-    if not (np.isfinite(v).all() and np.isfinite(yaw).all()):
-        raise ValueError("path velocity and yaw must be finite")
-    pad = FUTURE_SAMPLES * SPACING
-    v = np.concatenate([v, np.repeat(v[-1:], pad, axis=0)])
-    yaw = np.concatenate([yaw, np.repeat(yaw[-1:], pad)])
-    disp = np.concatenate([np.zeros((1, 2)), np.cumsum(v / fps, axis=0)])  # displacement before frame i
-    t = np.arange(len(velocity_Tx2))[:, None] + SPACING * np.arange(FUTURE_SAMPLES)[None]
-    offsets = disp[t] - disp[t[:, :1]]
-    return Controls(jnp.asarray(offsets, jnp.float32), jnp.asarray(yaw[t], jnp.float32))
-
-
-def signal_controls(signal: PathSignal) -> Controls:
-    """:class:`Controls` of a :class:`jaxstyle.control.paths.PathSignal` (velocity and facing per frame)."""
-    return path_controls(signal.velocity, signal.yaw, signal.fps)
-
-
-def turning_path(num_frames: int, speed: float, turn_rate: float, fps: float = 60.0,
-                 start_yaw: float = 0.0) -> Controls:
-    """Walk at ``speed`` (units/s) while turning at ``turn_rate`` (radians/s; 0 is a straight
-    line), facing the direction of travel."""
-    yaw = start_yaw + turn_rate * np.arange(num_frames) / fps
-    velocity = speed * np.stack([np.sin(yaw), np.cos(yaw)], axis=-1)
-    return path_controls(velocity, yaw, fps)
-
-
-def start_row(x_NxI: np.ndarray, speed: float, *, units_per_meter: float, rows: np.ndarray | None = None,
-              fps: float = 60.0) -> int:
-    """The index of the de-normalised input row (PFNN or LPN layout: both start with the 48
-    trajectory values) whose own trajectory moves closest to ``speed`` m/s in the straightest line:
-    a start pose for :func:`initial_state` that suits a path at that speed (a walking pose for a
-    walk, a standing one for ``speed=0``), among ``rows`` (default all)."""
-    x = np.asarray(x_NxI, dtype=np.float64)
-    idx = np.arange(len(x)) if rows is None else np.asarray(rows)
-    if x.ndim != 2 or x.shape[1] < 48 or len(idx) == 0:
-        raise ValueError(f"need (N, I >= 48) input rows and at least one candidate, got {x.shape} and {len(idx)} rows")
-    n = PAST_SAMPLES + FUTURE_SAMPLES
-    tx, tz = x[idx, :n], x[idx, n:2 * n]
-    dx, dz = tx[:, -1] - tx[:, 0], tz[:, -1] - tz[:, 0]
-    seconds = (n - 1) * SPACING / fps
-    moved = np.hypot(dx, dz) / units_per_meter / seconds
-    bend = np.abs(np.arctan2(dx, dz)) if speed > 0 else 0.0
-    return int(idx[np.argmin(np.abs(moved - speed) + bend)])
-
-
-def initial_ground(x_row: np.ndarray, groups: dict[str, slice]) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``hist_xz (61, 2)``, ``hist_yaw (61,)`` and ``future (4, 6)`` from the trajectory inputs of
-    one de-normalised input row (the PFNN and LPN layouts share them, ``groups`` names their
-    slices): the character stands at the global origin facing +Z, past frames between the
-    10-frame samples interpolated linearly."""
-    g, n = groups, PAST_SAMPLES + FUTURE_SAMPLES
-    (tx, tz), (dx, dz) = (np.split(x_row[g[k]], 2) for k in ("trajectory_position", "trajectory_direction"))
-    yaw = np.unwrap(np.arctan2(dx, dz))
-    yaw -= yaw[PAST_SAMPLES]  # the current sample faces +Z exactly
-    sample_t = np.arange(-PAST_SAMPLES, 1) * SPACING
-    frames = np.arange(-(HISTORY - 1), 1)
-    hist_xz = np.stack([np.interp(frames, sample_t, tx[:PAST_SAMPLES + 1]),
-                        np.interp(frames, sample_t, tz[:PAST_SAMPLES + 1])], axis=-1)
-    hist_xz -= hist_xz[-1]
-    hist_yaw = np.interp(frames, sample_t, yaw[:PAST_SAMPLES + 1])
-    f = slice(PAST_SAMPLES, n)
-    future = np.stack([tx[f], tz[f], dx[f], dz[f]])
-    return f32(hist_xz), f32(hist_yaw), f32(future)
-
-
-def f32(a) -> jax.Array:
-    """``a`` as a float32 JAX array."""
-    return jnp.asarray(a, jnp.float32)
 
 
 def initial_state(x_row: np.ndarray, phase: float, num_joints: int) -> RolloutState:
@@ -166,29 +86,6 @@ def initial_state(x_row: np.ndarray, phase: float, num_joints: int) -> RolloutSt
     hist_xz, hist_yaw, future = initial_ground(x, g)
     return RolloutState(hist_xz, hist_yaw, f32(np.mod(phase, 1.0)), f32(x[g["joint_position"]]),
                         f32(x[g["joint_velocity"]]), future)
-
-
-def trajectory_input(hist_xz: jax.Array, hist_yaw: jax.Array, future_4xF: jax.Array,
-                     controls_t: tuple[jax.Array, jax.Array], blend_bias: float = 1.5) -> jax.Array:
-    """The 48 trajectory inputs shared by the PFNN and the LPN layouts: x (12) | z (12) | direction
-    x (12) | z (12) at offsets -60 .. 50, in the current frame. Past samples come from the
-    character's own ground frames ``hist_xz (61, 2)``/``hist_yaw (61,)``; future samples are the
-    previous prediction ``future (4, 6)`` blended with the user's path at this frame
-    (``(offsets (6, 2), yaw (6,))``, one row of :class:`Controls`)."""
-    offsets, user_yaw = controls_t
-    origin, yaw = hist_xz[-1], hist_yaw[-1]
-    # past samples, in the current frame
-    past = slice(0, HISTORY - 1, SPACING)
-    px, pz = rotate_xz(hist_xz[past, 0] - origin[0], hist_xz[past, 1] - origin[1], -yaw)
-    pdx, pdz = rotate_xz(jnp.sin(hist_yaw[past]), jnp.cos(hist_yaw[past]), -yaw)
-    # future: the previous prediction blended with the user's path
-    ux, uz = rotate_xz(offsets[:, 0], offsets[:, 1], -yaw)
-    udx, udz = rotate_xz(jnp.sin(user_yaw), jnp.cos(user_yaw), -yaw)
-    w = 1.0 - (1.0 - jnp.arange(FUTURE_SAMPLES) / (FUTURE_SAMPLES - 1)) ** blend_bias
-    fx, fz, fdx, fdz = (future_4xF[i] + w * (u - future_4xF[i]) for i, u in enumerate((ux, uz, udx, udz)))
-    norm = jnp.maximum(jnp.sqrt(fdx ** 2 + fdz ** 2), 1e-6)
-    fdx, fdz = fdx / norm, fdz / norm
-    return jnp.concatenate([px, fx, pz, fz, pdx, fdx, pdz, fdz])
 
 
 def assemble_input(state: RolloutState, controls_t: tuple[jax.Array, jax.Array], blend_bias: float = 1.5) -> jax.Array:
@@ -226,10 +123,14 @@ def _step(params, adapter, x_norm, y_norm, num_joints, blend_bias, table, state:
     return advance(state, y_n * y_norm[1] + y_norm[0], num_joints)
 
 
-def normaliser_arrays(norm: Normaliser | tuple) -> tuple[jax.Array, jax.Array]:
-    """``(mean, std)`` as float32 arrays, from a :class:`Normaliser` or a ``(mean, std)`` pair."""
-    mean, std = (norm.mean, norm.std) if isinstance(norm, Normaliser) else norm
-    return jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32)
+def model_step(params, x_norm, y_norm, num_joints: int, blend_bias: float = 1.5, table: bool = False):
+    """The PFNN's per-frame ``step(adapter, state, control) -> (state, frame)`` for the shared loop
+    of :mod:`jaxstyle.control.loop`, closing over the base weights and the (mean, std) arrays."""
+    return functools.partial(_per_style_step, params, x_norm, y_norm, num_joints, blend_bias, table)
+
+
+def _per_style_step(params, x_norm, y_norm, num_joints, blend_bias, table, adapter, state, control):
+    return _step(params, adapter, x_norm, y_norm, num_joints, blend_bias, table, state, control)
 
 
 def rollout(params: dict, adapter: dict | None, x_norm: Normaliser, y_norm: Normaliser, state: RolloutState,
@@ -257,10 +158,9 @@ def step_fn(params: dict, adapter: dict | None, x_norm: Normaliser, y_norm: Norm
     loads them once: that halves the per-frame cost at batch 1 against passing ~20 weight arrays
     every call (``benchmarks/runtime.py``). The style stays an argument, so a user can switch or
     blend styles live (an adapter of the same kind and rank compiles once)."""
-    xn, yn = normaliser_arrays(x_norm), normaliser_arrays(y_norm)
-    step = jax.jit(lambda state, control, a: _step(params, a, xn, yn, int(num_joints), float(blend_bias),
-                                                   bool(table), state, control))
-    return lambda state, control, a=adapter: step(state, control, a)
+    step = model_step(params, normaliser_arrays(x_norm), normaliser_arrays(y_norm), int(num_joints),
+                      float(blend_bias), bool(table))
+    return loop.live_step(step, adapter)
 
 
 def rollout_batch(params: dict, adapters: dict | None, x_norm: Normaliser, y_norm: Normaliser,
@@ -274,22 +174,12 @@ def rollout_batch(params: dict, adapters: dict | None, x_norm: Normaliser, y_nor
                           num_joints=num_joints, blend_bias=float(blend_bias))
 
 
-def _scan(params, adapter, x_norm, y_norm, state, controls, num_joints, blend_bias, table):
-    def step(s, c):
-        return _step(params, adapter, x_norm, y_norm, num_joints, blend_bias, table, s, c)
-
-    _, out = jax.lax.scan(step, state, (controls.offsets, controls.yaw))
-    return out
-
-
 @functools.partial(jax.jit, static_argnames=("num_joints", "blend_bias", "table"))
 def _rollout(params, adapter, x_norm, y_norm, state, controls, *, num_joints, blend_bias, table):
-    return _scan(params, adapter, x_norm, y_norm, state, controls, num_joints, blend_bias, table)
+    return loop.scan_frames(model_step(params, x_norm, y_norm, num_joints, blend_bias, table), adapter, state, controls)
 
 
 @functools.partial(jax.jit, static_argnames=("num_joints", "blend_bias"))
 def _rollout_batch(params, adapters, x_norm, y_norm, states, controls, *, num_joints, blend_bias):
-    one = functools.partial(_scan, num_joints=num_joints, blend_bias=blend_bias, table=False)
-    adapter_axis = None if adapters is None else 0
-    return jax.vmap(lambda a, s, c: one(params, a, x_norm, y_norm, s, c),
-                    in_axes=(adapter_axis, 0, 0))(adapters, states, controls)
+    return loop.scan_characters(model_step(params, x_norm, y_norm, num_joints, blend_bias), adapters, states, controls,
+                                shared_style=adapters is None)

@@ -1,12 +1,13 @@
 """Closed-loop synthesis with the 2022 style models (Mason, Starke & Komura 2022, section 4.4), as
 one jitted ``lax.scan`` over frames, batched over characters with ``vmap``.
 
-The loop of :mod:`jaxstyle.control.controller` (the PFNN's) on the LPN layout of
-:mod:`jaxstyle.data.lpn_features`. Each frame:
+The shared loop of :mod:`jaxstyle.control.loop` (which the PFNN's :mod:`jaxstyle.control.controller`
+also runs) with this module's per-frame step on the LPN layout of :mod:`jaxstyle.data.lpn_features`.
+Each frame:
 
 * the input ``(48 + 12 B,)``: past trajectory from the character's own ground frames, future
   trajectory = the previous prediction blended with the user's path
-  (:func:`jaxstyle.control.controller.trajectory_input`, Zhang et al. 2018's blend as the paper says),
+  (:func:`jaxstyle.control.loop.trajectory_input`, Zhang et al. 2018's blend as the paper says),
   and the previous output's joint features (positions, velocities, forward and up vectors);
 * the gating input: the carried local phases (LPN), or the end effectors' velocities of the
   normalised input (MANN);
@@ -34,7 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control.controller import Controls, f32, initial_ground, normaliser_arrays, rotate_xz, trajectory_input
+from jaxstyle.control import loop
+from jaxstyle.control.loop import Controls, f32, initial_ground, normaliser_arrays, rotate_xz, trajectory_input
 from jaxstyle.data.lpn_features import NUM_PHASE_FEATURES, LPNLayout
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
@@ -138,12 +140,14 @@ def _check(config: StyleModelConfig, gate_columns):
     return None if gate_columns is None else tuple(int(c) for c in gate_columns)
 
 
-def _scan(params, config, style, x_norm, y_norm, state, controls, gate_columns, num_bones, blend_bias):
-    def step(s, c):
-        return _step(params, config, style, x_norm, y_norm, gate_columns, num_bones, blend_bias, s, c)
+def model_step(params, config: StyleModelConfig, x_norm, y_norm, gate_columns, num_bones: int, blend_bias: float = 1.5):
+    """The style model's per-frame ``step(style, state, control) -> (state, frame)`` for the shared
+    loop of :mod:`jaxstyle.control.loop`, closing over the network's weights and statistics."""
+    return functools.partial(_per_style_step, params, config, x_norm, y_norm, gate_columns, num_bones, blend_bias)
 
-    _, out = jax.lax.scan(step, state, (controls.offsets, controls.yaw))
-    return out
+
+def _per_style_step(params, config, x_norm, y_norm, gate_columns, num_bones, blend_bias, style, state, control):
+    return _step(params, config, style, x_norm, y_norm, gate_columns, num_bones, blend_bias, state, control)
 
 
 _STATIC = ("config", "gate_columns", "num_bones", "blend_bias")
@@ -151,16 +155,15 @@ _STATIC = ("config", "gate_columns", "num_bones", "blend_bias")
 
 @functools.partial(jax.jit, static_argnames=_STATIC)
 def _rollout(params, style, x_norm, y_norm, state, controls, *, config, gate_columns, num_bones, blend_bias):
-    return _scan(params, config, style, x_norm, y_norm, state, controls, gate_columns, num_bones, blend_bias)
+    step = model_step(params, config, x_norm, y_norm, gate_columns, num_bones, blend_bias)
+    return loop.scan_frames(step, style, state, controls)
 
 
 @functools.partial(jax.jit, static_argnames=_STATIC)
 def _rollout_batch(params, styles, x_norm, y_norm, states, controls, *, config, gate_columns, num_bones,
                    blend_bias):
-    def one(style, state, c):
-        return _scan(params, config, style, x_norm, y_norm, state, c, gate_columns, num_bones, blend_bias)
-
-    return jax.vmap(one)(styles, states, controls)
+    step = model_step(params, config, x_norm, y_norm, gate_columns, num_bones, blend_bias)
+    return loop.scan_characters(step, styles, states, controls)
 
 
 def rollout(params: dict, config: StyleModelConfig, style, x_norm: Normaliser, y_norm: Normaliser,
@@ -183,10 +186,9 @@ def step_fn(params: dict, config: StyleModelConfig, style, x_norm: Normaliser, y
     The network's weights are compiled in as constants (see :func:`jaxstyle.control.controller.step_fn`);
     the style (a FiLM vector, e.g. a live barycentric blend) stays an argument."""
     cols = _check(config, gate_columns)
-    xn, yn = normaliser_arrays(x_norm), normaliser_arrays(y_norm)
-    step = jax.jit(lambda state, control, st: _step(params, config, st, xn, yn, cols, int(num_bones),
-                                                    float(blend_bias), state, control))
-    return lambda state, control, st=style: step(state, control, st)
+    step = model_step(params, config, normaliser_arrays(x_norm), normaliser_arrays(y_norm), cols, int(num_bones),
+                      float(blend_bias))
+    return loop.live_step(step, style)
 
 
 def rollout_batch(params: dict, config: StyleModelConfig, styles, x_norm: Normaliser, y_norm: Normaliser,

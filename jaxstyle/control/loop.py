@@ -1,0 +1,179 @@
+"""The closed-loop synthesis loop both papers' controllers share (Holden et al. 2017's runtime, used
+by Mason et al. 2018 section 7.1 and Mason, Starke & Komura 2022 section 4.4).
+
+A controller is a per-model ``step(style, state, control) -> (state, frame)``: it assembles the
+network's input from the carried ``state`` and one row of the user's :class:`Controls`, runs the
+network with the per-character ``style`` (an adapter, a FiLM vector, ...) and moves the character.
+This module holds what does not depend on the model:
+
+* the user's path as :class:`Controls` (:func:`path_controls`, :func:`signal_controls`,
+  :func:`turning_path`) and a start pose that suits it (:func:`start_row`);
+* the 48 trajectory inputs both layouts share (:func:`trajectory_input`, :func:`initial_ground`);
+* the loop itself: :func:`scan_frames` (one character, ``lax.scan`` over frames),
+  :func:`scan_characters` (``vmap`` over characters, the network's parameters broadcast) and
+  :func:`live_step` (one jitted frame for interactive use).
+
+:mod:`jaxstyle.control.controller` (the PFNN's step) and :mod:`jaxstyle.control.lpn_controller`
+(the 2022 style models' step) are the two users.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxstyle.control.paths import PathSignal
+from jaxstyle.data.normalise import Normaliser
+from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PAST_SAMPLES
+
+HISTORY = PAST_SAMPLES * 10 + 1  # ground frames t-60 .. t, at the 60 fps sample spacing of 10
+SPACING = 10
+
+Step = Callable  # step(style, state, control) -> (state, frame)
+
+
+class Controls(NamedTuple):
+    """Per frame ``t``: the user's path ``offsets (T, 6, 2)``, the ground displacement from frame
+    ``t`` to ``t + 10 k`` (k = 0 .. 5), global, and the desired facing yaw ``yaw (T, 6)`` there."""
+
+    offsets: jax.Array
+    yaw: jax.Array
+
+
+def rotate_xz(x, z, a):
+    """Ground vectors ``(x, z)`` rotated by yaw ``a`` (the convention of
+    :func:`jaxstyle.motion.character_frame.rotate_yaw`)."""
+    c, s = jnp.cos(a), jnp.sin(a)
+    return x * c + z * s, -x * s + z * c
+
+
+def path_controls(velocity_Tx2, yaw_T, fps: float = 60.0) -> Controls:
+    """:class:`Controls` from a desired ground velocity (units per second, global x and z) and
+    facing yaw (radians) per frame. Past the last frame the last values hold."""
+    v = np.asarray(velocity_Tx2, dtype=np.float64)
+    yaw = np.asarray(yaw_T, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 2 or yaw.shape != (len(v),):
+        raise ValueError(f"velocity must be (T, 2) and yaw (T,), got {v.shape} and {yaw.shape}")
+    if not (np.isfinite(v).all() and np.isfinite(yaw).all()):
+        raise ValueError("path velocity and yaw must be finite")
+    pad = FUTURE_SAMPLES * SPACING
+    v = np.concatenate([v, np.repeat(v[-1:], pad, axis=0)])
+    yaw = np.concatenate([yaw, np.repeat(yaw[-1:], pad)])
+    disp = np.concatenate([np.zeros((1, 2)), np.cumsum(v / fps, axis=0)])  # displacement before frame i
+    t = np.arange(len(velocity_Tx2))[:, None] + SPACING * np.arange(FUTURE_SAMPLES)[None]
+    offsets = disp[t] - disp[t[:, :1]]
+    return Controls(jnp.asarray(offsets, jnp.float32), jnp.asarray(yaw[t], jnp.float32))
+
+
+def signal_controls(signal: PathSignal) -> Controls:
+    """:class:`Controls` of a :class:`jaxstyle.control.paths.PathSignal` (velocity and facing per frame)."""
+    return path_controls(signal.velocity, signal.yaw, signal.fps)
+
+
+def turning_path(num_frames: int, speed: float, turn_rate: float, fps: float = 60.0,
+                 start_yaw: float = 0.0) -> Controls:
+    """Walk at ``speed`` (units/s) while turning at ``turn_rate`` (radians/s; 0 is a straight
+    line), facing the direction of travel."""
+    yaw = start_yaw + turn_rate * np.arange(num_frames) / fps
+    velocity = speed * np.stack([np.sin(yaw), np.cos(yaw)], axis=-1)
+    return path_controls(velocity, yaw, fps)
+
+
+def start_row(x_NxI: np.ndarray, speed: float, *, units_per_meter: float, rows: np.ndarray | None = None,
+              fps: float = 60.0) -> int:
+    """The index of the de-normalised input row (PFNN or LPN layout: both start with the 48
+    trajectory values) whose own trajectory moves closest to ``speed`` m/s in the straightest line:
+    a start pose for :func:`initial_state` that suits a path at that speed (a walking pose for a
+    walk, a standing one for ``speed=0``), among ``rows`` (default all)."""
+    x = np.asarray(x_NxI, dtype=np.float64)
+    idx = np.arange(len(x)) if rows is None else np.asarray(rows)
+    if x.ndim != 2 or x.shape[1] < 48 or len(idx) == 0:
+        raise ValueError(f"need (N, I >= 48) input rows and at least one candidate, got {x.shape} and {len(idx)} rows")
+    n = PAST_SAMPLES + FUTURE_SAMPLES
+    tx, tz = x[idx, :n], x[idx, n:2 * n]
+    dx, dz = tx[:, -1] - tx[:, 0], tz[:, -1] - tz[:, 0]
+    seconds = (n - 1) * SPACING / fps
+    moved = np.hypot(dx, dz) / units_per_meter / seconds
+    bend = np.abs(np.arctan2(dx, dz)) if speed > 0 else 0.0
+    return int(idx[np.argmin(np.abs(moved - speed) + bend)])
+
+
+def initial_ground(x_row: np.ndarray, groups: dict[str, slice]) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``hist_xz (61, 2)``, ``hist_yaw (61,)`` and ``future (4, 6)`` from the trajectory inputs of
+    one de-normalised input row (the PFNN and LPN layouts share them, ``groups`` names their
+    slices): the character stands at the global origin facing +Z, past frames between the
+    10-frame samples interpolated linearly."""
+    g, n = groups, PAST_SAMPLES + FUTURE_SAMPLES
+    (tx, tz), (dx, dz) = (np.split(x_row[g[k]], 2) for k in ("trajectory_position", "trajectory_direction"))
+    yaw = np.unwrap(np.arctan2(dx, dz))
+    yaw -= yaw[PAST_SAMPLES]  # the current sample faces +Z exactly
+    sample_t = np.arange(-PAST_SAMPLES, 1) * SPACING
+    frames = np.arange(-(HISTORY - 1), 1)
+    hist_xz = np.stack([np.interp(frames, sample_t, tx[:PAST_SAMPLES + 1]),
+                        np.interp(frames, sample_t, tz[:PAST_SAMPLES + 1])], axis=-1)
+    hist_xz -= hist_xz[-1]
+    hist_yaw = np.interp(frames, sample_t, yaw[:PAST_SAMPLES + 1])
+    f = slice(PAST_SAMPLES, n)
+    future = np.stack([tx[f], tz[f], dx[f], dz[f]])
+    return f32(hist_xz), f32(hist_yaw), f32(future)
+
+
+def f32(a) -> jax.Array:
+    """``a`` as a float32 JAX array."""
+    return jnp.asarray(a, jnp.float32)
+
+
+def trajectory_input(hist_xz: jax.Array, hist_yaw: jax.Array, future_4xF: jax.Array,
+                     controls_t: tuple[jax.Array, jax.Array], blend_bias: float = 1.5) -> jax.Array:
+    """The 48 trajectory inputs shared by the PFNN and the LPN layouts: x (12) | z (12) | direction
+    x (12) | z (12) at offsets -60 .. 50, in the current frame. Past samples come from the
+    character's own ground frames ``hist_xz (61, 2)``/``hist_yaw (61,)``; future samples are the
+    previous prediction ``future (4, 6)`` blended with the user's path at this frame
+    (``(offsets (6, 2), yaw (6,))``, one row of :class:`Controls`)."""
+    offsets, user_yaw = controls_t
+    origin, yaw = hist_xz[-1], hist_yaw[-1]
+    # past samples, in the current frame
+    past = slice(0, HISTORY - 1, SPACING)
+    px, pz = rotate_xz(hist_xz[past, 0] - origin[0], hist_xz[past, 1] - origin[1], -yaw)
+    pdx, pdz = rotate_xz(jnp.sin(hist_yaw[past]), jnp.cos(hist_yaw[past]), -yaw)
+    # future: the previous prediction blended with the user's path
+    ux, uz = rotate_xz(offsets[:, 0], offsets[:, 1], -yaw)
+    udx, udz = rotate_xz(jnp.sin(user_yaw), jnp.cos(user_yaw), -yaw)
+    w = 1.0 - (1.0 - jnp.arange(FUTURE_SAMPLES) / (FUTURE_SAMPLES - 1)) ** blend_bias
+    fx, fz, fdx, fdz = (future_4xF[i] + w * (u - future_4xF[i]) for i, u in enumerate((ux, uz, udx, udz)))
+    norm = jnp.maximum(jnp.sqrt(fdx ** 2 + fdz ** 2), 1e-6)
+    fdx, fdz = fdx / norm, fdz / norm
+    return jnp.concatenate([px, fx, pz, fz, pdx, fdx, pdz, fdz])
+
+
+def normaliser_arrays(norm: Normaliser | tuple) -> tuple[jax.Array, jax.Array]:
+    """``(mean, std)`` as float32 arrays, from a :class:`Normaliser` or a ``(mean, std)`` pair."""
+    mean, std = (norm.mean, norm.std) if isinstance(norm, Normaliser) else norm
+    return jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32)
+
+
+def scan_frames(step: Step, style, state, controls: Controls):
+    """Run ``step(style, state, control)`` over the ``T`` rows of ``controls`` (``lax.scan``); the
+    generated frames, stacked over ``T``. Call it inside ``jit``."""
+    _, frames = jax.lax.scan(lambda s, c: step(style, s, c), state, (controls.offsets, controls.yaw))
+    return frames
+
+
+def scan_characters(step: Step, styles, states, controls: Controls, *, shared_style: bool = False):
+    """:func:`scan_frames` for ``C`` characters: ``states`` and ``controls`` stacked on a leading
+    axis; ``styles`` too, or one style for all with ``shared_style`` (broadcast, e.g. ``None`` for
+    the PFNN base). Whatever ``step`` closes over (the network's weights) is shared."""
+    style_axis = None if shared_style else 0
+    return jax.vmap(lambda st, s, c: scan_frames(step, st, s, c), in_axes=(style_axis, 0, 0))(styles, states, controls)
+
+
+def live_step(step: Step, default_style):
+    """A jitted ``f(state, control, style=default_style) -> (state, frame)`` for ONE frame, the
+    runtime's call per displayed frame when a user steers live (``control`` is one row of
+    :class:`Controls`). ``step`` closes over the weights, which are compiled in as constants, as a
+    game runtime loads them once; the style stays an argument so it can be switched or blended live."""
+    jitted = jax.jit(lambda state, control, style: step(style, state, control))
+    return lambda state, control, style=default_style: jitted(state, control, style)
