@@ -7,7 +7,8 @@ contract that import-linter checks):
 - motion: the Motion clip, BVH, quaternions, kinematics, transforms, skeleton roles;
 - labels: foot contacts, global phase, local phases;
 - data: locating and fetching capture, procedural clips, both papers' features, datasets;
-- nn: the networks of both papers as pure functions; train: checkpoints and run logs;
+- nn: the networks of both papers as pure functions (and Flax NNX modules over them); train: checkpoints
+  and run logs;
 - control: paths and the controllers; output: export, foot IK, previews, metrics, synthesis;
 - mason2018 and mason2022: each paper's workflows; cli: the jaxstyle command.
 
@@ -29,6 +30,7 @@ _NAMES = {
     "FootJoints": "labels.contacts",
     "JaxstyleError": "errors",
     "LPNFeatures": "data.lpn_features",
+    "LPNFiLMModule": "nn.modules",
     "LPNLayout": "data.lpn_features",
     "LPNTrainConfig": "mason2022.train",
     "LocalPhases": "labels.local_phase",
@@ -37,6 +39,7 @@ _NAMES = {
     "MotionQuality": "output.metrics",
     "Normaliser": "data.normalise",
     "PFNNLayout": "data.pfnn_features",
+    "PFNNModule": "nn.modules",
     "PathSignal": "control.paths",
     "RolloutCheck": "mason2018.selection",
     "SinusoidFit": "labels.sinusoid",
