@@ -1,8 +1,9 @@
 """The style modulation network: a FiLM generator on style clips (Mason, Starke & Komura 2022, 4.2).
 
-``Psi(y) = {gamma1, beta1, gamma2, beta2}`` (Eq. 2) from a clip ``y (240, 300)`` of joint
-features: two 1-D convolutions over time (256 filters of width 25, ReLU, 'same' padding), each
-followed by max-pooling by 2, then dense 2048 (ReLU, dropout) and dense 2048 = the four 512-vectors.
+``Psi(y) = {gamma1, beta1, gamma2, beta2}`` (Mason, Starke & Komura 2022, Eq. 2) from a clip
+``y (240, 300)`` of joint features: two 1-D convolutions over time (256 filters of width 25, ReLU,
+'same' padding), each followed by max-pooling by 2, then dense 2048 (ReLU, dropout) and dense
+2048 = the four 512-vectors.
 
 At runtime the generator is not run: a style is one precomputed 2048-vector
 (:func:`style_vectors`, the mean over a style's clips, section 4.4), and styles are interpolated
@@ -76,7 +77,8 @@ def _max_pool2(x_BxTxC: jax.Array) -> jax.Array:
 
 def generator_apply(params: dict, clip_BxTxC: jax.Array, *, key: jax.Array | None = None,
                     dropout_rate: jax.Array | float = 0.0) -> jax.Array:
-    """FiLM parameters ``(B, 2048)`` of ``B`` normalised clips ``(B, 240, 300)`` (Eq. 2)."""
+    """FiLM parameters ``(B, 2048)`` of ``B`` normalised clips ``(B, 240, 300)``: ``Psi(y)`` of
+    Mason, Starke & Komura 2022, Eq. 2 (split with :func:`jaxstyle.nn.lpn.split_film`)."""
     clip_BxTxC = jnp.asarray(clip_BxTxC)
     if clip_BxTxC.ndim != 3 or clip_BxTxC.shape[2] != params["conv1"]["W"].shape[1]:
         raise ValueError(f"clips must be (B, frames, {params['conv1']['W'].shape[1]}), got {clip_BxTxC.shape}")

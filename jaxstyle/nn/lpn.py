@@ -7,13 +7,14 @@
   ``W = sum_k alpha_k W_k`` (section 4.1). The blend is linear, so the ``K`` experts' OUTPUTS are
   blended (the same output blend as the PFNN's phase function, :func:`jaxstyle.nn.pfnn.pf_dense`):
   no weight matrix is ever built per sample.
-* :func:`layer_norm` and :func:`film`: Eq. 3's conditional normalisation
-  ``gamma * (F - mu) / sigma + beta``, LayerNorm without learned affine (as the authors' code).
-* :func:`synthesis_apply`: the animation synthesis network ``Phi`` (Eq. 3-4), ``348 -> 512 -> 512
-  -> 342``: per layer dropout -> expert layer -> (hidden layers) LayerNorm -> FiLM -> ELU. The
-  same function serves the PFNN and MANN backbones and the one-hot and residual-adapter style
+* :func:`layer_norm` and :func:`film`: the conditional normalisation of Mason, Starke & Komura
+  2022, Eq. 3, ``gamma * (F - mu) / sigma + beta``, LayerNorm without learned affine (as the
+  authors' code); :func:`split_film` splits Eq. 2's four FiLM vectors.
+* :func:`synthesis_apply`: the animation synthesis network ``Phi`` (2022, Eq. 3-4), ``348 -> 512
+  -> 512 -> 342``: per layer dropout -> expert layer -> (hidden layers) LayerNorm -> FiLM -> ELU.
+  The same function serves the PFNN and MANN backbones and the one-hot and residual-adapter style
   modulations of Table 2 (:mod:`jaxstyle.nn.style_models` chooses).
-* :func:`bone_length_loss`: Eq. 6, mean over bones of the absolute bone-length difference.
+* :func:`bone_length_loss`: 2022, Eq. 6, mean over bones of the absolute bone-length difference.
 
 Shapes: ``x_BxI`` inputs, ``alpha_BxK`` expert blend, ``film_Bx4H`` (or ``film_4H`` shared by the
 batch) the FiLM parameters ``[gamma1 | beta1 | gamma2 | beta2]``. Every function takes a batch;
@@ -78,28 +79,34 @@ def blended_weights(layer: dict, alpha_K: jax.Array) -> dict:
     return {"W": jnp.tensordot(alpha_K, layer["W"], axes=1), "b": alpha_K @ layer["b"]}
 
 
-# --- conditional normalisation (Eq. 3) ----------------------------------------------------------
+# --- conditional normalisation (Mason, Starke & Komura 2022, Eq. 3) -----------------------------
 
 def layer_norm(f_BxH: jax.Array, eps: float = LAYER_NORM_EPS) -> jax.Array:
-    """``(F - mu) / sigma`` over the features of each example, no learned affine (Ba et al. 2016)."""
+    """``(F - mu) / sigma`` over the features of each example, no learned affine (Ba et al. 2016):
+    the bracket of Mason, Starke & Komura 2022, Eq. 3, with ``mu``, ``sigma`` the mean and standard
+    deviation of ``F_j`` over its ``H`` features (``sigma = sqrt(var + eps)``, the biased variance)."""
     mu = jnp.mean(f_BxH, axis=-1, keepdims=True)
     var = jnp.mean(jnp.square(f_BxH - mu), axis=-1, keepdims=True)
     return (f_BxH - mu) * jax.lax.rsqrt(var + eps)
 
 
-def film(h_BxH: jax.Array, gamma: jax.Array, beta: jax.Array) -> jax.Array:
-    """Feature-wise linear modulation ``gamma * h + beta`` (raw ``gamma``, as the authors' code)."""
-    return gamma * h_BxH + beta
+def film(h_BxH: jax.Array, gamma_BxH: jax.Array, beta_BxH: jax.Array) -> jax.Array:
+    """Feature-wise linear modulation ``gamma o h + beta``: Mason, Starke & Komura 2022, Eq. 3
+    (applied to the :func:`layer_norm` of the features, before the ELU), raw ``gamma`` as the
+    authors' code. ``gamma_BxH``, ``beta_BxH`` are one layer's FiLM vectors of Eq. 2, per example
+    or ``(H,)`` shared by the batch. Eq. 8 (section 5.3.1) writes it as ``diag(gamma) h + beta``."""
+    return gamma_BxH * h_BxH + beta_BxH
 
 
 def split_film(film_x4H: jax.Array, hidden: int) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
-    """``gamma1, beta1, gamma2, beta2`` (Eq. 2) from ``(..., 4 H)`` FiLM parameters."""
+    """``gamma1, beta1, gamma2, beta2`` (Mason, Starke & Komura 2022, Eq. 2) from ``(..., 4 H)``
+    FiLM parameters."""
     if film_x4H.shape[-1] != 4 * hidden:
         raise ValueError(f"FiLM parameters must have {4 * hidden} values (4 x {hidden}), got {film_x4H.shape[-1]}")
     return tuple(film_x4H[..., i * hidden:(i + 1) * hidden] for i in range(4))
 
 
-# --- animation synthesis network Phi (Eq. 3, 4) -------------------------------------------------
+# --- animation synthesis network Phi (Mason, Starke & Komura 2022, Eq. 3, 4) -------------------
 
 def init_synthesis(key: jax.Array, num_experts: int, sizes: Sequence[int] = (348, 512, 512, 342)) -> dict:
     """Three expert layers ``l0, l1, l2`` of ``sizes`` (paper: 348 -> 512 -> 512 -> 342, 8 experts)."""
@@ -112,10 +119,11 @@ def synthesis_apply(params: dict, x_BxI: jax.Array, alpha_BxK: jax.Array, *, fil
                     shift_BxH: jax.Array | None = None,
                     residual: Callable[[jax.Array], jax.Array] | None = None, normalise: bool = True,
                     key: jax.Array | None = None, dropout_rate: jax.Array | float = 0.0) -> jax.Array:
-    """``z (B, O)`` from ``x (B, I)`` and the expert blend ``alpha (B, K)`` (Eq. 4).
+    """``z (B, O)`` from ``x (B, I)`` and the expert blend ``alpha (B, K)``: Mason, Starke & Komura
+    2022, Eq. 4.
 
     Layer ``i`` of the hidden layers: ``h_i = ELU(FiLM_i(LN(F_i)))`` with ``F_i`` the expert layer's
-    output on the dropped-out ``h_{i-1}`` (Eq. 3). Options for the Table 2 variants:
+    output on the dropped-out ``h_{i-1}`` (2022, Eq. 3). Options for the Table 2 variants:
 
     * ``film_params (B, 4H)`` or ``(4H,)``: FiLM on both hidden layers; ``None`` skips FiLM;
     * ``shift_BxH``: a style-dependent shift added to the first layer's features (one-hot);
@@ -145,12 +153,12 @@ def synthesis_apply(params: dict, x_BxI: jax.Array, alpha_BxK: jax.Array, *, fil
     return expert_dense(params["l2"], pfnn.dropout(k2, h2, dropout_rate), alpha_BxK)
 
 
-# --- bone-length loss (Eq. 6) -------------------------------------------------------------------
+# --- bone-length loss (Mason, Starke & Komura 2022, Eq. 6) --------------------------------------
 
 def bone_length_loss(pred_BxJx3: jax.Array, true_BxJx3: jax.Array, parents_J: Sequence[int]) -> jax.Array:
-    """Eq. 6 averaged over the batch (Eq. 7 per style): mean over bones ``b`` (joints with a parent)
-    of ``| |z_bp - z_b| - |z^_bp - z^_b| |``, on de-normalised positions; ``parents_J`` (-1 for
-    the root) is static."""
+    """Mason, Starke & Komura 2022, Eq. 6 averaged over the batch (Eq. 7 per style): mean over
+    bones ``b`` (joints with a parent) of ``| |z_bp - z_b| - |z^_bp - z^_b| |``, on de-normalised
+    positions; ``parents_J`` (-1 for the root) is static."""
     parents = np.asarray(parents_J)
     child = np.flatnonzero(parents >= 0)
     par = parents[child]

@@ -1,18 +1,27 @@
-"""Phase-functioned neural network with residual style adapters (Mason et al. 2018, sections 3 and 6).
+"""Phase-functioned neural network with residual style adapters (Mason et al. 2018, sections 3, 6, 7).
 
-Pure functions over parameter pytrees (dicts of arrays):
+Pure functions over parameter pytrees (dicts of arrays). The paper's equations are separate
+functions (docs/equations.md maps every equation to its function):
 
-* :func:`spline_weights`: the cubic Catmull-Rom phase function (Eq. 1a-1c) as 4 weights, one
-  per control point, for any batch of phases. Every phase-functioned quantity is linear in its
-  control points, so layers are evaluated for the 4 control points and their OUTPUTS blended with
-  these weights; no per-sample weight matrix is ever built.
+* :func:`catmull_rom_weights` (alias :func:`spline_weights`): the cubic Catmull-Rom phase
+  function (Mason et al. 2018, Eq. 1a-1c) as 4 weights, one per control point, for any batch of
+  phases. Every phase-functioned quantity is linear in its control points, so layers are evaluated
+  for the 4 control points and their OUTPUTS blended with these weights (:func:`pf_dense`); no
+  per-sample weight matrix is ever built.
+* :func:`full_residual`, :func:`diag_residual`, :func:`cp_residual`: the three residual adapters
+  ``R_s(h)`` of the middle layer (Mason et al. 2018, Eq. 4's ``W_res h + b_res``; the CP one is
+  Eq. 6's ``A D B^T`` factorisation) at one phase; :func:`apply_adapter` evaluates an adapter's
+  phase-functioned parameters and calls them.
 * :func:`init_pfnn` / :func:`init_adapter`: parameters (uniform ``+-sqrt(6 / (fan_in * fan_out))``
   weights, the product as in the authors' code, zero biases).
-* :func:`pfnn_apply`: Eq. 4, ``234 -> 512 -> 512 -> 400`` with ELU, a residual adapter on the
-  middle layer with its own dropout mask, or no adapter (the style-agnostic "average motion").
+* :func:`pfnn_apply`: Mason et al. 2018, Eq. 4, ``234 -> 512 -> 512 -> 400`` with ELU, a residual
+  adapter on the middle layer with its own dropout mask, or no adapter (the style-agnostic
+  "average motion").
 * :func:`dropout`: dropout whose rate is an array, so sweeps can ``vmap`` over rates.
-* :func:`l1_penalty` and :func:`loss`: MSE plus Eq. 3's L1 terms (``lambda_ag``, ``lambda_s``).
-* :func:`discretise` / :func:`pfnn_apply_table`: the runtime's 50 precomputed phase bins.
+* :func:`l1_penalty` and :func:`loss`: MSE plus the L1 terms (``lambda_ag``, ``lambda_s``) of
+  Mason et al. 2018, Eq. 3.
+* :func:`discretise` / :func:`pfnn_apply_table`: the runtime's 50 precomputed phase bins
+  (section 7.1).
 
 Shapes: ``x_BxI`` inputs, ``phase_B`` in cycles ``[0, 1)``, outputs ``y_BxO``. A phase-functioned
 dense layer holds ``W (4, I, O)`` and ``b (4, O)``.
@@ -22,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -48,14 +58,18 @@ class PFNNConfig:
             raise ValueError(f"rank must be positive, got {self.rank}")
 
 
-# --- the phase function (Eq. 1a-1c) -------------------------------------------------------------
+# --- the phase function (Mason et al. 2018, Eq. 1a-1c) -----------------------------------------
 
-def spline_weights(phase_B: jax.Array) -> jax.Array:
-    """``(B, 4)`` weights of the 4 control points for phases in cycles (Eq. 1a-1c).
+def catmull_rom_weights(phase_B: jax.Array) -> jax.Array:
+    """``(B, 4)`` weights of the 4 control points for phases in cycles: Mason et al. 2018, Eq. 1a-1c.
 
-    With ``t = 4 p``, ``k = floor(t)`` and ``mu = t - k``, the spline passes through control point
+    The phase function ``W(p) = sum_j weights[:, j] alpha_j`` (:func:`blend`). The paper's phase is
+    in radians; jaxstyle's ``phase_B`` is in cycles, so Eq. 1b's ``d = 4 p / 2 pi mod 1`` is
+    ``mu = 4 p mod 1`` and Eq. 1c's ``k_n = floor(4 p) + n - 1 mod 4``, ``n = 0..3``. With
+    ``t = 4 p``, ``k = floor(t)`` and ``mu = t - k``, the spline passes through control point
     ``k`` at ``mu = 0`` and uses points ``k-1, k, k+1, k+2`` (mod 4) with the Catmull-Rom cubic
-    ``(-y0/2 + 3y1/2 - 3y2/2 + y3/2) mu^3 + (y0 - 5y1/2 + 2y2 - y3/2) mu^2 + (-y0/2 + y2/2) mu + y1``.
+    (Eq. 1a) ``(-y0/2 + 3y1/2 - 3y2/2 + y3/2) mu^3 + (y0 - 5y1/2 + 2y2 - y3/2) mu^2 + (-y0/2 + y2/2) mu
+    + y1``. The 4 weights sum to 1 for every phase.
     """
     t = 4.0 * jnp.mod(jnp.asarray(phase_B, dtype=jnp.float32), 1.0)
     k = jnp.floor(t)
@@ -69,8 +83,13 @@ def spline_weights(phase_B: jax.Array) -> jax.Array:
     return jnp.sum(jax.nn.one_hot(idx, NUM_CONTROL_POINTS, dtype=coef.dtype) * coef[..., None], axis=-2)
 
 
+spline_weights = catmull_rom_weights
+"""The former name of :func:`catmull_rom_weights` (Mason et al. 2018, Eq. 1a-1c), kept as an alias."""
+
+
 def blend(values_4x: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
-    """``(B, ...)`` phase-functioned values from their ``(4, ...)`` control points."""
+    """``(B, ...)`` phase-functioned values from their ``(4, ...)`` control points and the
+    :func:`catmull_rom_weights` of the phases (Mason et al. 2018, Eq. 1a for vectors and biases)."""
     return jnp.tensordot(weights_Bx4, values_4x, axes=1)
 
 
@@ -80,7 +99,10 @@ SMALL_BATCH = 8
 
 
 def pf_dense(layer: dict, h_BxI: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
-    """Phase-functioned dense layer: the 4 control-point layers' outputs, blended (Eq. 1).
+    """Phase-functioned dense layer ``W(p) h + b(p)`` with ``W(p), b(p)`` the phase function of
+    Mason et al. 2018, Eq. 1a (or the expert blend ``W = sum_k alpha_k W_k`` of Mason, Starke &
+    Komura 2022, section 4.1): ``sum_k weights[:, k] (h W_k + b_k)``, the ``K`` control-point
+    layers' outputs blended, never a weight matrix per sample.
 
     The product runs in the dtype of ``W`` (e.g. a frozen base cast to bfloat16 by
     :func:`cast_weights`), accumulating in float32; the result is float32."""
@@ -169,15 +191,58 @@ def adapter_kind(adapter: dict) -> str:
     return "full" if "W" in adapter else "diagonal"
 
 
-def apply_adapter(adapter: dict, h_BxH: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
-    """The residual ``R_s(h)`` added to the middle layer's pre-activation (section 3.2)."""
+# --- the residual adapters (Mason et al. 2018, Eq. 4 and Eq. 6) --------------------------------
+
+def full_residual(h_BxH: jax.Array, W_HxO: jax.Array, b_O: jax.Array) -> jax.Array:
+    """``h W + b``: a full residual adapter at one phase, Mason et al. 2018, Eq. 4's
+    ``W_res^(s) h + b_res^(s)`` (section 3.2, the feed-forward form of Eq. 2's ``h_1x1 * x``), one
+    ``(H, O)`` matrix shared by the batch (a :func:`discretise` bin, or the phase-free adapter of the
+    2022 LPN and MANN ``Resad`` baselines). A batch with per-sample phases uses :func:`pf_dense`,
+    which is ``sum_k weights[:, k] full_residual(h, W_k, b_k)``: outputs blended, no per-sample
+    matrix.
+    """
+    return h_BxH @ W_HxO + b_O
+
+
+def diag_residual(h_BxH: jax.Array, d_BxH: jax.Array, b_BxH: jax.Array) -> jax.Array:
+    """``d * h + b``: the diagonal residual adapter, Mason et al. 2018, Eq. 4 with
+    ``W_res^(s)(p) = diag(d(p))`` (section 8.1 and Table 1's diagonal comparison). ``d_BxH`` and
+    ``b_BxH`` are the diagonal and bias at each sample's phase (:func:`blend` of the control points,
+    or one bin of :func:`discretise`); any shape broadcasting against ``(B, H)``, e.g. ``(H,)``
+    shared by the batch.
+    """
+    return d_BxH * h_BxH + b_BxH
+
+
+def cp_residual(h_BxH: jax.Array, A_RxH: jax.Array, d_BxR: jax.Array, B_HxR: jax.Array, b_H: jax.Array) -> jax.Array:
+    """``B diag(d(p)) A h + b``: the CP-factored residual adapter, Mason et al. 2018, Eq. 6
+    (``X_k = A D^(k) B^T``, one slice ``k`` per phase, section 7.1) applied to ``h`` factor by
+    factor, never forming the ``H x H`` slice: ``A_RxH`` and ``B_HxR`` are phase-independent, the core
+    ``d_BxR`` (the diagonal of ``D``) is at each sample's phase (:func:`blend` of its 4 control
+    points, or one bin of :func:`discretise`; ``(R,)`` is shared by the batch), the bias ``b_H`` is
+    phase-independent (the authors' code). In the paper's notation ``A`` is our ``B_HxR`` and
+    ``B^T`` our ``A_RxH``.
+    """
+    return (d_BxR * (h_BxH @ A_RxH.T)) @ B_HxR.T + b_H
+
+
+def _residual(adapter: dict, h_BxH: jax.Array, at: Callable, full: Callable) -> jax.Array:
+    """An adapter's residual with its phase-functioned vectors evaluated by ``at`` and, for a full
+    adapter, the residual itself given by ``full(adapter, h)``."""
     kind = adapter_kind(adapter)
     if kind == "full":
-        return pf_dense(adapter, h_BxH, weights_Bx4)
+        return full(adapter, h_BxH)
     if kind == "diagonal":
-        return blend(adapter["d"], weights_Bx4) * h_BxH + blend(adapter["b"], weights_Bx4)
-    core = blend(adapter["d"], weights_Bx4) * (h_BxH @ adapter["A"].T)  # (B, rank)
-    return core @ adapter["B"].T + adapter["b"]
+        return diag_residual(h_BxH, at(adapter["d"]), at(adapter["b"]))
+    return cp_residual(h_BxH, adapter["A"], at(adapter["d"]), adapter["B"], adapter["b"])
+
+
+def apply_adapter(adapter: dict, h_BxH: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
+    """The residual ``R_s(h)`` added to the middle layer's pre-activation (Mason et al. 2018,
+    Eq. 4), at the phases whose :func:`catmull_rom_weights` are ``weights_Bx4``:
+    :func:`full_residual` (through :func:`pf_dense`), :func:`diag_residual` or :func:`cp_residual`."""
+    return _residual(adapter, h_BxH, lambda v: blend(v, weights_Bx4),
+                     lambda a, h: pf_dense(a, h, weights_Bx4))
 
 
 def barycentric(weights_K, count: int, *, max_count: int | None = None, what: str = "style") -> np.ndarray:
@@ -261,13 +326,15 @@ def dropout(key: jax.Array, x: jax.Array, rate: jax.Array | float) -> jax.Array:
 def pfnn_apply(params: dict, x_BxI: jax.Array, phase_B: jax.Array, *, adapter: dict | None = None,
                key: jax.Array | None = None, dropout_rate: jax.Array | float = 0.0,
                adapter_dropout_rate: jax.Array | float | None = None) -> jax.Array:
-    """Eq. 4: ``y = W2(p) drop(h2) + b2(p)``, ``h2 = ELU(W1(p) drop(h1) + b1(p) + R_s(drop'(h1)))``,
-    ``h1 = ELU(W0(p) drop(x) + b0(p))``. ``adapter=None`` drops ``R_s`` (the average motion).
+    """Mason et al. 2018, Eq. 4: ``y = W2(p) drop(h2) + b2(p)``,
+    ``h2 = ELU(W1(p) drop(h1) + b1(p) + R_s(drop'(h1)))``, ``h1 = ELU(W0(p) drop(x) + b0(p))``, every
+    ``W(p), b(p)`` the phase function of Eq. 1a (:func:`pf_dense`) and ``R_s`` the adapter
+    (:func:`apply_adapter`). ``adapter=None`` drops ``R_s`` (the average motion).
 
     ``key`` is needed when a dropout rate is non-zero; the adapter path gets its own mask (rate
     ``adapter_dropout_rate``, default ``dropout_rate``).
     """
-    w = spline_weights(phase_B)
+    w = catmull_rom_weights(phase_B)
     if key is None:
         key = jax.random.PRNGKey(0)  # only used with zero rates, where masks keep everything
     k0, k1, k2, ka = jax.random.split(key, 4)
@@ -291,7 +358,8 @@ def l1_penalty(tree: dict) -> jax.Array:
 
 def loss(params: dict, adapter: dict | None, x_BxI, y_BxO, phase_B, *, key=None, dropout_rate=0.0,
          lambda_ag: float = 0.01, lambda_s: float = 0.01) -> jax.Array:
-    """Eq. 3: MSE on normalised outputs + ``lambda_ag`` L1(base) + ``lambda_s`` L1(adapter)."""
+    """Mason et al. 2018, Eq. 3 (with the authors' mean squared error for the paper's ``||.||_2``):
+    MSE on normalised outputs + ``lambda_ag`` L1(base) + ``lambda_s`` L1(adapter)."""
     pred = pfnn_apply(params, x_BxI, phase_B, adapter=adapter, key=key, dropout_rate=dropout_rate)
     total = jnp.mean((pred - y_BxO) ** 2) + lambda_ag * l1_penalty(params)
     if adapter is not None:
@@ -299,7 +367,7 @@ def loss(params: dict, adapter: dict | None, x_BxI, y_BxO, phase_B, *, key=None,
     return total
 
 
-# --- runtime: discretised phase bins (section 7.1) ----------------------------------------------
+# --- runtime: discretised phase bins (Mason et al. 2018, section 7.1) ---------------------------------
 
 def discretise(tree: dict, num_bins: int = 50) -> dict:
     """Every phase-functioned array of ``tree`` (``W``, ``d``, and 2-D ``b``, each ``(4, ...)``)
@@ -309,7 +377,7 @@ def discretise(tree: dict, num_bins: int = 50) -> dict:
     The paper's runtime precomputes 50 bins and indexes them with ``floor(phase * 50)``. jaxstyle
     evaluates each bin at its centre rather than its start, which halves the largest error.
     """
-    w = spline_weights((jnp.arange(num_bins) + 0.5) / num_bins)  # (bins, 4)
+    w = catmull_rom_weights((jnp.arange(num_bins) + 0.5) / num_bins)  # (bins, 4)
 
     def one(path, v):
         name = getattr(path[-1], "key", None)
@@ -332,12 +400,5 @@ def pfnn_apply_table(table: dict, x_BxI: jax.Array, phase: jax.Array | float, *,
     h1 = jax.nn.elu(_table_dense(table["l0"], x_BxI, i))
     pre = _table_dense(table["l1"], h1, i)
     if adapter_table is not None:
-        kind = adapter_kind(adapter_table)
-        a = adapter_table
-        if kind == "full":
-            pre = pre + _table_dense(a, h1, i)
-        elif kind == "diagonal":
-            pre = pre + a["d"][i] * h1 + a["b"][i]
-        else:
-            pre = pre + (a["d"][i] * (h1 @ a["A"].T)) @ a["B"].T + a["b"]
+        pre = pre + _residual(adapter_table, h1, lambda v: v[i], lambda a, h: full_residual(h, a["W"][i], a["b"][i]))
     return _table_dense(table["l2"], jax.nn.elu(pre), i)

@@ -8,20 +8,24 @@ A model is an animation synthesis **backbone** with a style **modulation**:
   - ``"mann"``: 8 experts gated by the end effectors' velocities (4 bones x 3 = 12 values, taken
     from the input frame, Zhang et al. 2018);
   - ``"pfnn"``: 4 control points blended by the Catmull-Rom weights of the global phase
-    (:func:`jaxstyle.nn.pfnn.spline_weights`; the PFNN is an expert blend whose gate is the spline).
+    (:func:`jaxstyle.nn.pfnn.catmull_rom_weights`, Mason et al. 2018, Eq. 1a-1c; the PFNN is an
+    expert blend whose gate is the spline).
 
 * modulations (the per-style part):
 
   - ``"film"``: FiLM on both hidden layers, the parameters from the clip encoder
-    (:mod:`jaxstyle.nn.film_generator`), LayerNorm before it (Eq. 3). Per style at runtime: one 2048-vector;
+    (:mod:`jaxstyle.nn.film_generator`), LayerNorm before it (2022, Eq. 3). Per style at runtime: one
+    2048-vector;
   - ``"onehot"``: a one-hot style vector concatenated to the input, i.e. a style-dependent shift
     of the first layer's features, with one shift per expert (blended like the weights; ``(S, K,
     H)``, per style ``K x 512``);
   - ``"resad"``: a residual adapter on the middle layer with its own dropout mask: on the PFNN the
-    2018 CP adapter (rank 30, phase-dependent core), on the LPN and MANN a full ``512 x 512``
-    matrix and bias (the paper did not carry the CP's phase dependence over to the LPN).
+    2018 CP adapter (rank 30, phase-dependent core; :func:`jaxstyle.nn.pfnn.cp_residual`, Mason et
+    al. 2018, Eq. 6), on the LPN and MANN a full ``512 x 512`` matrix and bias
+    (:func:`jaxstyle.nn.pfnn.full_residual`; the paper did not carry the CP's phase dependence over
+    to the LPN).
 
-``layer_norm`` defaults to on for FiLM models only (Eq. 3's conditional normalisation; the
+``layer_norm`` defaults to on for FiLM models only (2022, Eq. 3's conditional normalisation; the
 one-hot and adapter models are the original PFNN formulations without it).
 
 Sizes for the paper's Table 2 come from :meth:`StyleModelConfig.paper`: the PFNN predicts one
@@ -143,15 +147,15 @@ def expert_blend(params: dict, config: StyleModelConfig, gate_BxG: jax.Array, *,
     """``alpha (B, K)``: the gating network's softmax (LPN, MANN) or the spline weights of the
     global phase ``gate (B,)`` or ``(B, 1)`` in cycles (PFNN)."""
     if config.backbone == "pfnn":
-        return pfnn.spline_weights(jnp.reshape(gate_BxG, (gate_BxG.shape[0],)))
+        return pfnn.catmull_rom_weights(jnp.reshape(gate_BxG, (gate_BxG.shape[0],)))
     return lpn.gating_apply(params["gating"], gate_BxG, key=key, dropout_rate=dropout_rate)
 
 
 def model_apply(params: dict, config: StyleModelConfig, x_BxI: jax.Array, gate_BxG: jax.Array, style, *,
                 key: jax.Array | None = None, dropout_rate: jax.Array | float = 0.0) -> jax.Array:
-    """``z (B, O)`` (Eq. 4). ``style`` is the per-style runtime parameter: FiLM ``(B, 4H)`` or
-    ``(4H,)``; a one-hot model's ``(K, H)`` shift table (a blend of tables interpolates styles); an
-    adapter model's adapter (:func:`style_runtime`)."""
+    """``z (B, O)`` (Mason, Starke & Komura 2022, Eq. 4). ``style`` is the per-style runtime
+    parameter: FiLM ``(B, 4H)`` or ``(4H,)``; a one-hot model's ``(K, H)`` shift table (a blend of
+    tables interpolates styles); an adapter model's adapter (:func:`style_runtime`)."""
     kg, ks = jax.random.split(jax.random.PRNGKey(0) if key is None else key)
     alpha = expert_blend(params, config, gate_BxG, key=kg, dropout_rate=dropout_rate)
     kwargs = {}
@@ -162,7 +166,7 @@ def model_apply(params: dict, config: StyleModelConfig, x_BxI: jax.Array, gate_B
     elif config.backbone == "pfnn":
         kwargs["residual"] = lambda h: pfnn.apply_adapter(style, h, alpha)
     else:
-        kwargs["residual"] = lambda h: h @ style["W"] + style["b"]
+        kwargs["residual"] = lambda h: pfnn.full_residual(h, style["W"], style["b"])
     return lpn.synthesis_apply(params["synthesis"], x_BxI, alpha, normalise=config.normalise, key=ks,
                                dropout_rate=dropout_rate, **kwargs)
 
