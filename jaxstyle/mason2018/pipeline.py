@@ -5,17 +5,22 @@ Mason et al. 2018 end to end, on any folder in the 100STYLE layout
 100STYLE archive (``jaxstyle data fetch 100style``), the shared sample, or the procedural styles of
 :mod:`jaxstyle.data.procedural` (``jaxstyle data generate``, what ``jaxstyle demo`` trains on).
 
-1. :func:`split_styles` picks the base (training) styles and the held-out few-shot styles;
-2. :func:`train_base` trains (or resumes, or reloads) the base PFNN with one CP adapter per base
-   style into a run folder, writing ``base.json`` (the :class:`BaseSettings`, so later commands
+1. data: :func:`split_styles` picks the base (training) styles and the held-out few-shot styles
+   (the style-folder functions live in :mod:`jaxstyle.data.folders`, shared with
+   :mod:`jaxstyle.mason2022.pipeline`, and are re-exported here); :func:`build`, :func:`style_table`;
+2. train: :func:`train_base` trains (or resumes, or reloads) the base PFNN with one CP adapter per
+   base style into a run folder, writing ``base.json`` (the :class:`BaseSettings`, so later commands
    rebuild the same data) and the normalisation statistics beside the checkpoints;
-3. :func:`run_sweep` fine-tunes a new adapter for every (few-shot set, dropout rate) in one
-   compiled program (:func:`jaxstyle.mason2018.selection.fewshot_sweep`) and writes the report (CSV,
-   heatmap, chosen rates, adapters) and ``sweep.json`` (the sets' clips);
-4. :func:`characters` gathers base and few-shot styles for :func:`jaxstyle.output.synthesis.synthesize`.
+3. sweep and select: :func:`run_sweep` fine-tunes a new adapter for every (few-shot set, dropout
+   rate) in one compiled program (:func:`jaxstyle.mason2018.selection.fewshot_sweep`), chooses a
+   rate per set and writes the report (CSV, heatmap, chosen rates, adapters) and ``sweep.json``;
+4. report: :func:`sweep_table` and :func:`check_table` (Markdown lines);
+5. synthesis: :func:`characters` gathers base and few-shot styles and :func:`synthesize` drives them
+   along paths (:func:`jaxstyle.output.synthesis.synthesize`);
+6. timing: :func:`bench` (``jaxstyle bench``) and :func:`adapter_cost` (the paper's Table 1).
 
-``experiments/fewshot_sweep.py`` is the same pipeline with the paper's settings on the shared
-100STYLE sample.
+The ``jaxstyle`` commands (:mod:`jaxstyle.cli`) and ``experiments/fewshot_sweep.py``,
+``experiments/synthesize.py`` and ``experiments/mason2018_table1.py`` are this pipeline.
 """
 
 from __future__ import annotations
@@ -28,126 +33,34 @@ from pathlib import Path
 from typing import Callable, NamedTuple, Sequence
 
 import jax
+import numpy as np
 
 from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
+from jaxstyle.data.folders import (  # noqa: F401  (re-exported: the pipeline's data step)
+    DEMO_FEWSHOT,
+    LOCOMOTION_GAITS,
+    PAPER_BASE,
+    PAPER_FEWSHOT,
+    PipelineError,
+    available_styles,
+    clip_specs,
+    folder_specs,
+    split_styles,
+    style_root,
+)
 from jaxstyle.data.pfnn_features import PFNNLayout, valid_frames
-from jaxstyle.errors import JaxstyleError
+from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import fewshot, selection
-from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, train
+from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, finetune_adapter, train
 from jaxstyle.motion import Motion
 from jaxstyle.motion.bvh import frame_rate
 from jaxstyle.nn import pfnn
 from jaxstyle.output import synthesis
-from jaxstyle.output.synthesis import Character
-
-PAPER_FEWSHOT = ("Aeroplane", "Elated", "Rushed")
-"""The held-out styles of ``experiments/fewshot_sweep.py`` (in the shared 100STYLE sample)."""
-DEMO_FEWSHOT = ("Limping", "Proud")
-"""The held-out styles of the procedural data (:mod:`jaxstyle.data.procedural`)."""
-LOCOMOTION_GAITS = ("BR", "BW", "FR", "FW", "SR", "SW")
-"""100STYLE's locomotion gaits: all but idling (ID) and transitions (TR1-3)."""
-
-
-class PipelineError(JaxstyleError):
-    """A run folder or data folder that cannot be used as asked (the message says why and what to do)."""
-
+from jaxstyle.output.synthesis import Character, SynthesisResult
+from jaxstyle.train.scan import DEFAULT_RATES
 
 # --- data ---------------------------------------------------------------------------------------
-
-def style_root(path: str | os.PathLike) -> Path:
-    """The style folder at ``path``: ``path`` itself or its ``100style``/``100STYLE`` sub-folder (so
-    ``../shared/mocap`` works) when it holds ``Frame_Cuts.csv`` (the 100STYLE layout), else ``path``
-    when it has style sub-folders of ``<Style>/<Style>_<GAIT>.bvh`` files (your own data: whole
-    files, every one mirrored too unless a ``Dataset_List.csv`` says a style is not symmetric)."""
-    path = Path(path).expanduser()
-    if not path.is_dir():
-        raise PipelineError(f"data folder {path} not found")
-    for candidate in (path, path / "100style", path / "100STYLE"):
-        if (candidate / "Frame_Cuts.csv").is_file():
-            return candidate.resolve()
-    if available_styles(path):
-        return path.resolve()
-    raise PipelineError(f"{path} holds no style folders: expected <root>/<Style>/<Style>_<GAIT>.bvh, as in 100STYLE "
-                        f"(with its Frame_Cuts.csv, or without it to use whole files), or a 100style sub-folder; "
-                        "`jaxstyle data generate` writes such a folder, `jaxstyle data fetch 100style` downloads one")
-
-
-def available_styles(root: Path) -> tuple[str, ...]:
-    """Styles of a 100STYLE-layout folder that have at least one BVH file."""
-    return tuple(sorted(p.name for p in root.iterdir() if p.is_dir() and any(p.glob(f"{p.name}_*.bvh"))))
-
-
-def split_styles(root: Path, fewshot_styles: Sequence[str] | None = None,
-                 base_styles: Sequence[str] | None = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """``(base, few-shot)`` styles of ``root``. The few-shot ones default to the procedural data's
-    :data:`DEMO_FEWSHOT` or the paper's :data:`PAPER_FEWSHOT` when the folder has them, else its last
-    style; the base ones default to every other style."""
-    have = available_styles(root)
-    if not have:
-        raise PipelineError(f"no <Style>/<Style>_<GAIT>.bvh file under {root}")
-    for names, what in ((fewshot_styles, "few-shot"), (base_styles, "base")):
-        unknown = sorted(set(names or ()) - set(have))
-        if unknown:
-            raise PipelineError(f"unknown {what} style(s) {', '.join(unknown)}; {root} has {', '.join(have)}")
-    if fewshot_styles is None:
-        fewshot_styles = tuple(s for s in DEMO_FEWSHOT if s in have) or tuple(s for s in PAPER_FEWSHOT if s in have)
-        if not fewshot_styles or len(fewshot_styles) == len(have):
-            fewshot_styles = have[-1:]
-    if base_styles is None:
-        base_styles = tuple(s for s in have if s not in fewshot_styles)
-    both = sorted(set(base_styles) & set(fewshot_styles))
-    if both:
-        raise PipelineError(f"style(s) {', '.join(both)} are both base and few-shot styles")
-    if not base_styles:
-        raise PipelineError(f"no base style left: {root} has only {', '.join(have)}")
-    return tuple(base_styles), tuple(fewshot_styles)
-
-
-def _cut(spec: ClipSpec, seconds: float | None) -> ClipSpec:
-    if seconds is None:
-        return spec
-    stop = spec.start + int(round(seconds * frame_rate(spec.path)))
-    return dataclasses.replace(spec, stop=stop if spec.stop is None else min(spec.stop, stop))
-
-
-def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None) -> list[ClipSpec]:
-    """Whole-file clips of ``<root>/<Style>/<Style>_<GAIT>.bvh`` for a folder without
-    ``Frame_Cuts.csv``: every gait found unless ``gaits`` names some; each clip mirrored too unless
-    ``Dataset_List.csv`` (100STYLE's columns ``Style Name``, ``Symmetric``) says the style is not
-    symmetric."""
-    listed = root / "Dataset_List.csv"
-    symmetric = datasets.symmetric_styles(listed) if listed.is_file() else {}
-    specs = []
-    for style in styles:
-        for f in sorted((root / style).glob(f"{style}_*.bvh")):
-            gait = f.stem[len(style) + 1:]
-            if gaits is not None and gait not in gaits:
-                continue
-            for mirror in (False, True) if symmetric.get(style, True) else (False,):
-                specs.append(ClipSpec(str(f), style, mirror=mirror, gait=gait))
-    missing = sorted(set(styles) - {s.style for s in specs})
-    if missing:
-        raise PipelineError(f"styles {missing} have no clip under {root}"
-                            + (f" (gaits {', '.join(gaits)})" if gaits else ""))
-    return specs
-
-
-def clip_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None,
-               max_seconds: float | None = None) -> list[ClipSpec]:
-    """Clips of ``styles`` and ``gaits``, each cut to its first ``max_seconds`` (default: the whole
-    Frame_Cuts range, or the whole file); mirrored where the style is symmetric. With
-    ``Frame_Cuts.csv`` (the 100STYLE layout) ``gaits`` defaults to :data:`LOCOMOTION_GAITS`, without
-    it to every gait found (:func:`folder_specs`)."""
-    if not (root / "Frame_Cuts.csv").is_file():
-        return [_cut(s, max_seconds) for s in folder_specs(root, styles, gaits)]
-    gaits = tuple(gaits or LOCOMOTION_GAITS)
-    try:
-        specs = datasets.specs_100style(root, styles=styles, gaits=gaits)
-    except ValueError as e:
-        raise PipelineError(f"{e} (gaits {', '.join(gaits)})") from None
-    return [_cut(s, max_seconds) for s in specs]
-
 
 def fewshot_specs(root: Path, styles: Sequence[str], seconds: float,
                   gaits: Sequence[str] | None = None) -> list[ClipSpec]:
@@ -195,6 +108,23 @@ def build(specs: Sequence[ClipSpec], cache: str | os.PathLike | None, progress: 
         return datasets.build_pfnn_dataset(specs, cache_dir=cache, skip_short=True, progress=progress)
 
 
+def style_table(dataset: datasets.Dataset) -> list[str]:
+    """Markdown lines: per style of PFNN rows its clips, training / validation / test rows, median
+    speed and median step rate."""
+    upm = estimate_units_per_meter(datasets.load_clip(dataset.specs[0]))
+    lines = ["| style | clips | rows train / val / test | speed m/s (median) | steps/s (median) |",
+             "|---|---|---|---|---|"]
+    for s in dataset.styles:
+        rows = dataset.rows_of_style(s)
+        clips = len(np.unique(dataset.clip[rows]))
+        split = [int((dataset.split[rows] == k).sum()) for k in range(3)]
+        speed = synthesis.own_speed(dataset, rows, upm)
+        dphase = np.mod(np.diff(dataset.phases[rows, 0]), 1.0)
+        steps = 2 * 60.0 * np.median(dphase[dphase < 0.5]) if (dphase < 0.5).any() else float("nan")
+        lines.append(f"| {s} | {clips} | {split[0]} / {split[1]} / {split[2]} | {speed:.2f} | {steps:.2f} |")
+    return lines
+
+
 # --- the base model -----------------------------------------------------------------------------
 
 @dataclasses.dataclass(frozen=True)
@@ -229,6 +159,12 @@ class BaseSettings:
         d["styles"] = tuple(d["styles"])
         d["gaits"] = None if d.get("gaits") is None else tuple(d["gaits"])
         return cls(**d)
+
+
+def paper_base_settings(mocap: str | os.PathLike, epochs: int = 20) -> BaseSettings:
+    """``experiments/fewshot_sweep.py``'s base: the :data:`PAPER_BASE` styles of the shared 100STYLE
+    sample in ``mocap``, every gait, the paper's sizes."""
+    return BaseSettings(str(Path(mocap) / "100style"), PAPER_BASE, datasets.GAITS_100STYLE, epochs=epochs)
 
 
 class Base(NamedTuple):
@@ -302,13 +238,14 @@ def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None =
 # --- few-shot sweep -----------------------------------------------------------------------------
 
 def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLike, *,
-              rates: Sequence[float] = (0.3, 0.5, 0.7), epochs: int = 100, adapter_dropout_only: bool = False,
-              cache: str | os.PathLike | None = None, progress: bool = True
-              ) -> tuple[selection.SweepResult, dict[str, Path], datasets.Dataset]:
+              rates: Sequence[float] = DEFAULT_RATES, epochs: int = 100, adapter_dropout_only: bool = False,
+              matmul_dtype: str = "float32", skeleton: Motion | None = None, cache: str | os.PathLike | None = None,
+              progress: bool = True) -> tuple[selection.SweepResult, dict[str, Path], datasets.Dataset]:
     """Fine-tune a new adapter per (few-shot set of ``specs``, rate) on the frozen base in one compiled
-    sweep, validate and check them closed-loop, choose a rate per set, and write the report to
-    ``directory`` with ``sweep.json`` (the sets' clips). Returns the result, the report's paths and
-    the few-shot dataset."""
+    sweep, validate and check them closed-loop (on ``skeleton``, default the base's), choose a rate
+    per set, and write the report to ``directory`` with ``sweep.json`` (the sets' clips). Returns the
+    result, the report's paths and the few-shot dataset. ``adapter_dropout_only`` and
+    ``matmul_dtype``: see :class:`jaxstyle.mason2018.fewshot.SweepConfig`."""
     if not specs:
         raise PipelineError("no few-shot clips")
     if epochs < 1 or not rates or any(not 0 <= r < 1 for r in rates):
@@ -319,8 +256,9 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
                             f"{base.model.input_size}: they need the base's skeleton ({base.skeleton.num_joints} "
                             "joints)")
     config = fewshot.SweepConfig(model=base.model, epochs=epochs, rates=tuple(float(r) for r in rates),
-                                 adapter_dropout_only=adapter_dropout_only)
-    result = selection.fewshot_sweep(base.params, base.normalisers, shots, base.skeleton, config, progress=progress)
+                                 adapter_dropout_only=adapter_dropout_only, matmul_dtype=matmul_dtype)
+    result = selection.fewshot_sweep(base.params, base.normalisers, shots, skeleton or base.skeleton, config,
+                                     progress=progress)
     paths = selection.write_report(result, directory, config)
     meta = {"specs": [dataclasses.asdict(s) for s in specs], "rates": list(config.rates), "epochs": epochs,
             "styles": list(result.styles), "seconds": result.seconds}
@@ -332,14 +270,36 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
 
 
 def sweep_table(result: selection.SweepResult) -> list[str]:
-    """Markdown lines: per set, its rows, validation loss per rate, the chosen rate and its check."""
-    lines = ["| set | train rows | " + " | ".join(f"val @ {r:g}" for r in result.rates) + " | chosen | check |",
-             "|---|---|" + "---|" * len(result.rates) + "---|---|"]
+    """Markdown lines: per set, its training and validation rows, validation loss per rate (marked
+    where the closed-loop check fails), the chosen rate and its check."""
+    lines = ["| set | train rows | validation rows | " + " | ".join(f"val @ {r:g}" for r in result.rates)
+             + " | chosen | check |", "|---|---|---|" + "---|" * len(result.rates) + "---|---|"]
     for s, style in enumerate(result.styles):
         cells = [f"{result.validation_loss[s, r]:.3f}" + ("" if result.rollout["passed"][s, r] else " (fails)")
                  for r in range(len(result.rates))]
-        lines.append(f"| {style} | {result.train_rows[s]} | " + " | ".join(cells)
+        lines.append(f"| {style} | {result.train_rows[s]} | {result.validation_rows[s]} | " + " | ".join(cells)
                      + f" | {result.chosen_rate(style):g} | {'passed' if result.chosen_passed[s] else 'FAILED'} |")
+    return lines
+
+
+def check_table(result: selection.SweepResult) -> list[str]:
+    """Markdown lines: the closed-loop check of each set's chosen rate beside the base and real clips,
+    and the mean validation loss per rate."""
+    lines = ["| set | bone error (base) | feet on floor (real) | skating m/s (base; real) | distance / requested |",
+             "|---|---|---|---|---|"]
+    ro, ref = result.rollout, result.reference
+    for s, style in enumerate(result.styles):
+        r = int(result.chosen[s])
+        lines.append(f"| {style} | {100 * ro['bone_error'][s, r]:.1f}% ({100 * ref['base_bone_error'][s]:.1f}%) "
+                     f"| {ro['contact_fraction'][s, r]:.2f} ({ref['contact_fraction'][s]:.2f}) "
+                     f"| {ro['skating_m_s'][s, r]:.2f} ({ref['base_skating_m_s'][s]:.2f}; "
+                     f"{ref['skating_m_s'][s]:.2f}) | {ro['progress'][s, r]:.2f} |")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a rate without any finite loss
+        mean = np.nanmean(result.validation_loss, axis=0)
+    lines.append("")
+    lines.append("mean validation loss per rate: "
+                 + ", ".join(f"{r:g}: {m:.3f}" for r, m in zip(result.rates, mean, strict=True)))
     return lines
 
 
@@ -379,3 +339,142 @@ def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
             raise PipelineError("a blend needs two few-shot sets")
         out.append(synthesis.blend_character(*shot_chars[:2]))
     return out
+
+
+def default_sets(chosen: dict, limit: int = 3) -> list[str]:
+    """The few-shot sets to show by default: the sweep's walking (``_FW``) sets, else any, up to ``limit``."""
+    walks = [s for s in chosen if s.endswith("_FW")]
+    return (walks or list(chosen))[:limit]
+
+
+def synthesize(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.Dataset | None,
+               chosen: dict | None, directory: str | os.PathLike, *, base_styles: Sequence[str] = (),
+               fewshot_sets: Sequence[str] = (), blend: bool = False, paths: Sequence[str] = ("circle",),
+               seconds: float = 8.0, speed: float | None = None, foot_ik: bool = False, mp4: bool = False,
+               every: int = 2, progress: bool = True) -> tuple[SynthesisResult, list[Character]]:
+    """Base styles and few-shot sets (:func:`characters`) along ``paths`` in one batched rollout,
+    written to ``directory`` (:func:`jaxstyle.output.synthesis.synthesize`: GIFs, BVH files, a
+    contact sheet, quality.csv)."""
+    chars = characters(base, sweep_dir, shots, chosen, base_styles=base_styles, fewshot_sets=fewshot_sets,
+                       blend=blend)
+    result = synthesis.synthesize(base.params, base.normalisers, chars, base.skeleton, Path(directory),
+                                  path_names=list(paths), seconds=seconds, speed=speed, foot_ik=foot_ik, mp4=mp4,
+                                  every=every, contact_sheet=True, progress=progress)
+    return result, chars
+
+
+def rollout_summary(result: SynthesisResult, num_characters: int, num_paths: int) -> str:
+    """One line: characters x paths, frames and speed of the batched rollout."""
+    return (f"{num_characters} characters x {num_paths} paths, {result.frames:,} frames in one batched rollout: "
+            f"{result.seconds:.2f} s ({result.frames / result.seconds:,.0f} frames/s)")
+
+
+# --- timing -------------------------------------------------------------------------------------
+
+class Bench(NamedTuple):
+    """Timings of :func:`bench`: ``seconds`` (``sweep``, ``loop``) and ``forward_ms`` per batch size;
+    the sweep's ``pairs``, ``steps`` per pair and ``batch_size``."""
+
+    seconds: dict[str, float]
+    forward_ms: dict[int, tuple[float, float]]
+    pairs: int
+    steps: int
+    batch_size: int
+
+
+def bench(params: dict, model: pfnn.PFNNConfig, *, sets: int = 4, frames: int = 600, epochs: int = 5,
+          rates: Sequence[float] = DEFAULT_RATES, batches: Sequence[int] = (1, 1024)) -> Bench:
+    """The few-shot sweep of ``sets`` x ``rates`` pairs on random rows (``frames`` per set) as ONE
+    jit(vmap) program against a Python loop of the same single runs, each timed after a compile
+    run; and the PFNN forward pass (mean and std, ms) at each batch size of ``batches``."""
+    import time
+
+    import jax.numpy as jnp
+
+    from jaxstyle.timing import time_call
+    from jaxstyle.train import scan
+
+    rng = np.random.default_rng(0)
+    n = sets * frames
+    x = jnp.asarray(rng.standard_normal((n, model.input_size)), jnp.float32)
+    y = jnp.asarray(rng.standard_normal((n, model.output_size)), jnp.float32)
+    phase = jnp.asarray(rng.random(n), jnp.float32)
+    rows = [np.arange(s * frames, (s + 1) * frames) for s in range(sets)]
+    config = fewshot.SweepConfig(model=model, epochs=epochs, rates=tuple(rates))
+    plan, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
+
+    def sweep():
+        return fewshot.finetune_sweep(params, x, y, phase, plan, mask, config)
+
+    def loop():
+        return [fewshot.finetune_one(params, x, y, phase, plan[s], mask[s], rate, scan.pair_key(config.seed, s, r),
+                                     config)[0]
+                for s in range(sets) for r, rate in enumerate(config.rates)]
+
+    seconds = {}
+    for name, fn in (("sweep", sweep), ("loop", loop)):
+        jax.block_until_ready(fn())  # compile
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        seconds[name] = time.perf_counter() - t0
+    forward = jax.jit(lambda xb, pb: pfnn.pfnn_apply(params, xb, pb))
+    forward_ms = {}
+    for b in batches:
+        xb, pb = x[:b] if b <= n else jnp.tile(x, (b // n + 1, 1))[:b], jnp.resize(phase, (b,))
+        mean, std = time_call(lambda xb=xb, pb=pb: forward(xb, pb), calls=50 if b == 1 else 10, runs=3)
+        forward_ms[b] = (1e3 * mean, 1e3 * std)
+    return Bench(seconds, forward_ms, sets * len(config.rates), int(plan.shape[1]), config.batch_size)
+
+
+class AdapterCost(NamedTuple):
+    """Table 1 of the 2018 paper for one adapter ``kind``: memory (MB, 2^20 bytes) of one new adapter's
+    control points and of its 50-bin runtime table, mean seconds to fine-tune one on a style, and the
+    median seconds of one jitted single-frame forward pass with the tables."""
+
+    kind: str
+    memory_mb: float
+    table_mb: float
+    train_seconds: float
+    runtime_seconds: float
+
+
+def adapter_cost(kind: str, data, styles: Sequence[int], *, epochs: int = 100, repeats: int = 200) -> AdapterCost:
+    """:class:`AdapterCost` of ``kind`` on the paper's 234 -> 512 -> 512 -> 400 PFNN: memory measured
+    from the arrays (and checked against :func:`jaxstyle.nn.pfnn.adapter_bytes`); fine-tuning a new
+    adapter (base frozen) for ``epochs`` epochs of batch 32 on each style of ``styles`` of ``data``
+    (:class:`jaxstyle.mason2018.train.TrainData`), each timed after a compile run; the forward pass
+    over ``repeats`` calls."""
+    import statistics
+    import time
+
+    import jax.numpy as jnp
+
+    def nbytes(tree) -> int:
+        return sum(int(v.size) * v.dtype.itemsize for v in jax.tree.leaves(tree))
+
+    config = pfnn.PFNNConfig(adapter=kind)
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), config)
+    adapter = pfnn.init_adapter(jax.random.PRNGKey(1), config)
+    table, adapter_table = pfnn.discretise(params), pfnn.discretise(adapter)
+    measured = (nbytes(adapter), nbytes(adapter_table))
+    formula = (pfnn.adapter_bytes(config), pfnn.adapter_bytes(config, num_bins=50))
+    if measured != formula:
+        raise AssertionError(f"{kind}: adapter bytes {measured} differ from the formula's {formula}")
+    train_config = TrainConfig(model=config, epochs=epochs, batch_size=32)
+    per_style = []
+    for s in styles:
+        jax.block_until_ready(finetune_adapter(params, adapter, data, s, train_config))  # compile this shape
+        t0 = time.perf_counter()
+        jax.block_until_ready(finetune_adapter(params, adapter, data, s, train_config))
+        per_style.append(time.perf_counter() - t0)
+    forward = jax.jit(lambda x, p: pfnn.pfnn_apply_table(table, x, p, adapter_table=adapter_table))
+    x = jnp.asarray(data.x[:1])
+    jax.block_until_ready(forward(x, 0.3))
+    times = []
+    for i in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(forward(x, (i % 50) / 50))
+        times.append(time.perf_counter() - t0)
+    mib = 2.0 ** 20
+    return AdapterCost(kind, measured[0] / mib, measured[1] / mib, statistics.mean(per_style),
+                       statistics.median(times))

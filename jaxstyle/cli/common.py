@@ -1,0 +1,200 @@
+"""What every command shares: the run folder, argument groups, one-line errors, small helpers."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime
+import importlib
+import json
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Sequence
+
+DEFAULT_RUN = Path("runs/jaxstyle")
+DEMO_RUN = Path("runs/demo")
+DATA_HELP = ("a style folder: <Style>/<Style>_<GAIT>.bvh files, with 100STYLE's Frame_Cuts.csv or without it (whole "
+             "files), or a folder holding 100style/")
+
+
+class CLIError(Exception):
+    """A problem with the user's arguments or files, reported on one line."""
+
+
+# --- the run folder -----------------------------------------------------------------------------
+
+def _jsonable(value):
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    return value
+
+
+_UNSAVED = ("handler", "debug", "quiet")
+
+
+class Run:
+    """A run folder: ``say`` prints and appends to ``log.txt``; the command's settings are saved in
+    ``config.json`` under the command's name (earlier commands' entries are kept)."""
+
+    def __init__(self, directory: Path, command: str, settings: dict, argv: Sequence[str]):
+        self.dir = Path(directory)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.command = command
+        self.save_settings(settings)
+        self._log = open(self.dir / "log.txt", "a", encoding="utf-8")
+        stamp = datetime.datetime.now().isoformat(timespec="seconds")
+        self._log.write(f"\n=== {stamp} jaxstyle {' '.join(argv)}\n")
+        self._log.flush()
+
+    def save_settings(self, settings: dict) -> None:
+        """Write ``settings`` into ``config.json`` under this command's name (atomically)."""
+        config_path = self.dir / "config.json"
+        config = {}
+        if config_path.is_file():
+            with contextlib.suppress(json.JSONDecodeError):
+                config = json.loads(config_path.read_text())
+        config[self.command] = _jsonable({k: v for k, v in settings.items() if k not in _UNSAVED})
+        tmp = config_path.with_name("config.json.tmp")
+        tmp.write_text(json.dumps(config, indent=2))
+        os.replace(tmp, config_path)
+
+    def say(self, text: str = "") -> None:
+        print(text, flush=True)
+        self._log.write(text + "\n")
+        self._log.flush()
+
+    def close(self) -> None:
+        self._log.close()
+
+
+# --- argument parsing ---------------------------------------------------------------------------
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (and a pointer to ``--help``) instead of the usage block."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+class Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """Raw descriptions; defaults shown unless there is none or the help already says it."""
+
+    def _get_help_string(self, action):
+        if action.default in (None, False) or "default" in (action.help or ""):
+            return action.help
+        return super()._get_help_string(action)
+
+
+class LazyDefault:
+    """A default read from a library constant (``module``'s ``name``) only when it is needed: when
+    help is shown or the command runs (:func:`resolve_defaults`), so that building the parser
+    imports no JAX."""
+
+    def __init__(self, module: str, name: str):
+        self.module, self.name = module, name
+
+    def value(self):
+        value = getattr(importlib.import_module(self.module), self.name)
+        return list(value) if isinstance(value, tuple) else value
+
+    def __str__(self) -> str:
+        value = self.value()
+        return " ".join(map(str, value)) if isinstance(value, list) else str(value)
+
+
+def resolve_defaults(args: argparse.Namespace) -> None:
+    """Replace every :class:`LazyDefault` left in ``args`` by its value."""
+    for key, value in vars(args).items():
+        if isinstance(value, LazyDefault):
+            setattr(args, key, value.value())
+
+
+SWEEP_RATES = LazyDefault("jaxstyle.train.scan", "DEFAULT_RATES")
+"""The few-shot sweep's dropout rates (the library's default)."""
+
+
+def add_common(parser: argparse.ArgumentParser, run_default: Path | None = DEFAULT_RUN) -> None:
+    if run_default is not None:
+        parser.add_argument("--run", type=Path, default=run_default,
+                            help="run folder: models, reports, config.json and log.txt")
+    parser.add_argument("--config", type=Path, help="TOML file of settings (keys = long flag names); flags win")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks instead of one-line errors")
+
+
+def add_base_args(p: argparse.ArgumentParser, *, hidden: int, epochs: int, rank: int) -> None:
+    p.add_argument("--styles", nargs="+", help="base (training) styles (default: all but the few-shot ones)")
+    p.add_argument("--fewshot-styles", nargs="+",
+                   help="styles held out for the few-shot sweep (default: the procedural data's Limping and Proud, "
+                        "100STYLE's Aeroplane, Elated and Rushed when present, else the last style)")
+    p.add_argument("--gaits", nargs="+", help="100STYLE gait codes to use (default: the locomotion gaits "
+                                               "BR BW FR FW SR SW)")
+    p.add_argument("--hidden", type=int, default=hidden, help="hidden units of the PFNN (paper: 512)")
+    p.add_argument("--rank", type=int, default=rank, help="rank of the CP adapters (paper: 30)")
+    p.add_argument("--base-epochs", type=int, default=epochs, help="base training epochs (paper: 25)")
+    p.add_argument("--max-seconds", type=float, help="use only the first seconds of each base clip")
+
+
+def add_sweep_args(p: argparse.ArgumentParser, *, epochs: int) -> None:
+    p.add_argument("--seconds", type=float, default=10.0, help="length of each few-shot clip (paper: a few seconds)")
+    p.add_argument("--rates", type=float, nargs="+", default=SWEEP_RATES, help="dropout rates to sweep")
+    p.add_argument("--sweep-epochs", type=int, default=epochs, help="fine-tuning epochs per (set, rate) (paper: 100)")
+    p.add_argument("--adapter-dropout-only", action="store_true",
+                   help="faster mode: dropout on the adapter path only (see jaxstyle.mason2018.fewshot.SweepConfig)")
+
+
+def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds: float) -> None:
+    from jaxstyle.control.paths import PATHS
+
+    p.add_argument("--paths", nargs="+", default=list(paths), choices=list(PATHS), help="paths to walk")
+    p.add_argument("--synth-seconds", type=float, default=seconds, help="length of each synthesised path")
+    p.add_argument("--speed", type=float, help="speed of every character, m/s (default: each style's own)")
+    p.add_argument("--foot-ik", action="store_true", help="pin the feet in contact in the BVH files")
+    p.add_argument("--mp4", action="store_true", help="also write MP4s (needs ffmpeg)")
+    p.add_argument("--every", type=int, default=2, help="draw every n-th frame in the animations")
+
+
+# --- helpers ------------------------------------------------------------------------------------
+
+def progress(args) -> bool:
+    return not args.quiet
+
+
+def _cpu_name() -> str:
+    """The CPU's model name (Linux), else what :mod:`platform` knows."""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.processor() or platform.machine()
+
+
+def machine() -> str:
+    import jax
+
+    return (f"{_cpu_name()}, {os.cpu_count()} cores, jax {jax.__version__} on "
+            f"{jax.devices()[0].platform} x {jax.device_count()}")
+
+
+def elapsed(t0: float) -> str:
+    s = time.perf_counter() - t0
+    return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
+
+
+def check_positive(args, *names: str) -> None:
+    for name in names:
+        value = getattr(args, name, None)
+        if value is not None and value <= 0:
+            raise CLIError(f"--{name.replace('_', '-')} must be positive, got {value:g}")
+
+
+def written(run: Run, title: str, files: Sequence[Path]) -> None:
+    run.say(f"{title}:")
+    for f in files:
+        run.say(f"  {f}")

@@ -1,0 +1,129 @@
+"""Style folders in the 100STYLE layout, shared by both papers' pipelines.
+
+A style folder is ``<root>/<Style>/<Style>_<GAIT>.bvh``: the real 100STYLE archive (with its
+``Frame_Cuts.csv`` and ``Dataset_List.csv``), the shared sample, the procedural styles of
+:mod:`jaxstyle.data.procedural`, or your own files (whole files, no ``Frame_Cuts.csv``).
+:func:`style_root` finds one, :func:`split_styles` picks the training and held-out styles and
+:func:`clip_specs` lists their clips for :func:`jaxstyle.data.datasets.build_pfnn_dataset` or
+:func:`jaxstyle.data.datasets.build_lpn_dataset`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Sequence
+
+from jaxstyle.data import datasets
+from jaxstyle.data.datasets import ClipSpec
+from jaxstyle.errors import JaxstyleError
+from jaxstyle.motion.bvh import frame_rate
+
+PAPER_FEWSHOT = ("Aeroplane", "Elated", "Rushed")
+"""The held-out styles of ``experiments/fewshot_sweep.py`` (in the shared 100STYLE sample)."""
+PAPER_BASE = ("Angry", "Chicken", "Drunk", "InTheDark", "Neutral")
+"""The base styles of ``experiments/fewshot_sweep.py`` (the rest of the shared 100STYLE sample)."""
+DEMO_FEWSHOT = ("Limping", "Proud")
+"""The held-out styles of the procedural data (:mod:`jaxstyle.data.procedural`)."""
+LOCOMOTION_GAITS = ("BR", "BW", "FR", "FW", "SR", "SW")
+"""100STYLE's locomotion gaits: all but idling (ID) and transitions (TR1-3)."""
+
+
+class PipelineError(JaxstyleError):
+    """A run folder or data folder that cannot be used as asked (the message says why and what to do)."""
+
+
+def style_root(path: str | os.PathLike) -> Path:
+    """The style folder at ``path``: ``path`` itself or its ``100style``/``100STYLE`` sub-folder (so
+    ``../shared/mocap`` works) when it holds ``Frame_Cuts.csv`` (the 100STYLE layout), else ``path``
+    when it has style sub-folders of ``<Style>/<Style>_<GAIT>.bvh`` files (your own data: whole
+    files, every one mirrored too unless a ``Dataset_List.csv`` says a style is not symmetric)."""
+    path = Path(path).expanduser()
+    if not path.is_dir():
+        raise PipelineError(f"data folder {path} not found")
+    for candidate in (path, path / "100style", path / "100STYLE"):
+        if (candidate / "Frame_Cuts.csv").is_file():
+            return candidate.resolve()
+    if available_styles(path):
+        return path.resolve()
+    raise PipelineError(f"{path} holds no style folders: expected <root>/<Style>/<Style>_<GAIT>.bvh, as in 100STYLE "
+                        f"(with its Frame_Cuts.csv, or without it to use whole files), or a 100style sub-folder; "
+                        "`jaxstyle data generate` writes such a folder, `jaxstyle data fetch 100style` downloads one")
+
+
+def available_styles(root: Path) -> tuple[str, ...]:
+    """Styles of a 100STYLE-layout folder that have at least one BVH file."""
+    return tuple(sorted(p.name for p in root.iterdir() if p.is_dir() and any(p.glob(f"{p.name}_*.bvh"))))
+
+
+def split_styles(root: Path, fewshot_styles: Sequence[str] | None = None,
+                 base_styles: Sequence[str] | None = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``(base, few-shot)`` styles of ``root``. The few-shot ones default to the procedural data's
+    :data:`DEMO_FEWSHOT` or the paper's :data:`PAPER_FEWSHOT` when the folder has them, else its last
+    style; the base ones default to every other style."""
+    have = available_styles(root)
+    if not have:
+        raise PipelineError(f"no <Style>/<Style>_<GAIT>.bvh file under {root}")
+    for names, what in ((fewshot_styles, "few-shot"), (base_styles, "base")):
+        unknown = sorted(set(names or ()) - set(have))
+        if unknown:
+            raise PipelineError(f"unknown {what} style(s) {', '.join(unknown)}; {root} has {', '.join(have)}")
+    if fewshot_styles is None:
+        fewshot_styles = tuple(s for s in DEMO_FEWSHOT if s in have) or tuple(s for s in PAPER_FEWSHOT if s in have)
+        if not fewshot_styles or len(fewshot_styles) == len(have):
+            fewshot_styles = have[-1:]
+    if base_styles is None:
+        base_styles = tuple(s for s in have if s not in fewshot_styles)
+    both = sorted(set(base_styles) & set(fewshot_styles))
+    if both:
+        raise PipelineError(f"style(s) {', '.join(both)} are both base and few-shot styles")
+    if not base_styles:
+        raise PipelineError(f"no base style left: {root} has only {', '.join(have)}")
+    return tuple(base_styles), tuple(fewshot_styles)
+
+
+def cut(spec: ClipSpec, seconds: float | None) -> ClipSpec:
+    """``spec`` cut to its first ``seconds`` (``None``: unchanged)."""
+    if seconds is None:
+        return spec
+    stop = spec.start + int(round(seconds * frame_rate(spec.path)))
+    return dataclasses.replace(spec, stop=stop if spec.stop is None else min(spec.stop, stop))
+
+
+def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None) -> list[ClipSpec]:
+    """Whole-file clips of ``<root>/<Style>/<Style>_<GAIT>.bvh`` for a folder without
+    ``Frame_Cuts.csv``: every gait found unless ``gaits`` names some; each clip mirrored too unless
+    ``Dataset_List.csv`` (100STYLE's columns ``Style Name``, ``Symmetric``) says the style is not
+    symmetric."""
+    listed = root / "Dataset_List.csv"
+    symmetric = datasets.symmetric_styles(listed) if listed.is_file() else {}
+    specs = []
+    for style in styles:
+        for f in sorted((root / style).glob(f"{style}_*.bvh")):
+            gait = f.stem[len(style) + 1:]
+            if gaits is not None and gait not in gaits:
+                continue
+            for mirror in (False, True) if symmetric.get(style, True) else (False,):
+                specs.append(ClipSpec(str(f), style, mirror=mirror, gait=gait))
+    missing = sorted(set(styles) - {s.style for s in specs})
+    if missing:
+        raise PipelineError(f"styles {missing} have no clip under {root}"
+                            + (f" (gaits {', '.join(gaits)})" if gaits else ""))
+    return specs
+
+
+def clip_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None,
+               max_seconds: float | None = None) -> list[ClipSpec]:
+    """Clips of ``styles`` and ``gaits``, each cut to its first ``max_seconds`` (default: the whole
+    Frame_Cuts range, or the whole file); mirrored where the style is symmetric. With
+    ``Frame_Cuts.csv`` (the 100STYLE layout) ``gaits`` defaults to :data:`LOCOMOTION_GAITS`, without
+    it to every gait found (:func:`folder_specs`)."""
+    if not (root / "Frame_Cuts.csv").is_file():
+        return [cut(s, max_seconds) for s in folder_specs(root, styles, gaits)]
+    gaits = tuple(gaits or LOCOMOTION_GAITS)
+    try:
+        specs = datasets.specs_100style(root, styles=styles, gaits=gaits)
+    except ValueError as e:
+        raise PipelineError(f"{e} (gaits {', '.join(gaits)})") from None
+    return [cut(s, max_seconds) for s in specs]
