@@ -119,6 +119,7 @@ def test_sharded_grid_matches_one_device():
         from tests.test_fewshot import _data, SMALL
         from jaxstyle.mason2018 import fewshot
         from jaxstyle.nn import pfnn
+        from jaxstyle.train import scan
         x, y, phase, rows = _data()
         config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.5))
         params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)

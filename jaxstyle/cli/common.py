@@ -115,7 +115,7 @@ def resolve_defaults(args: argparse.Namespace) -> None:
             setattr(args, key, value.value())
 
 
-SWEEP_RATES = LazyDefault("jaxstyle.train.scan", "DEFAULT_RATES")
+SWEEP_RATES = LazyDefault("jaxstyle.train.defaults", "DEFAULT_RATES")
 """The few-shot sweep's dropout rates (the library's default)."""
 
 

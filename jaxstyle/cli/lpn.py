@@ -19,7 +19,7 @@ from jaxstyle.cli.common import (
     written,
 )
 
-FINETUNE_RATES = LazyDefault("jaxstyle.mason2022.pipeline", "FINETUNE_RATES")
+FINETUNE_RATES = LazyDefault("jaxstyle.train.defaults", "FILM_DEFAULT_RATES")
 NAME = "lpn"
 HELP = "train the 2022 LPN-FiLM network, test it, fine-tune it on new styles"
 DOC = """\

@@ -2,8 +2,10 @@
 
 The base PFNN is frozen; for every (style, dropout rate) pair a fresh adapter is trained on that
 style's few hundred frames. :func:`finetune_sweep` runs ALL pairs in one ``jit`` of a ``vmap``
-over styles of a ``vmap`` over rates, each a ``lax.scan`` over steps; base parameters are closed
-over (broadcast, never copied per pair) and gradients are taken with respect to the adapter only.
+over styles of a ``vmap`` over rates, each a ``lax.scan`` over steps; base parameters are
+broadcast (``in_axes=None``, never copied per pair) and gradients are taken with respect to the
+adapter only. The program is the shared grid driver :func:`jaxstyle.train.scan.grid_sweep` with
+this paper's loss, :class:`AdapterLoss` (the 2022 FiLM generator sweep is the same driver).
 
 Ragged styles: every style gets ``epochs * max(1, rows // batch)`` real steps; shorter styles are
 padded to the longest with masked steps, which leave the adapter and the optimiser state
@@ -22,16 +24,15 @@ are in :mod:`jaxstyle.mason2018.selection`.
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxstyle.nn import pfnn
-from jaxstyle.train.scan import pair_key, train_scan
+from jaxstyle.train import scan
+from jaxstyle.train.scan import DEFAULT_RATES, pair_key
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,7 +58,7 @@ class SweepConfig:
     epochs: int = 100
     batch_size: int = 32
     learning_rate: float = 1e-4
-    rates: tuple[float, ...] = (0.3, 0.5, 0.7)
+    rates: tuple[float, ...] = DEFAULT_RATES
     lambda_s: float = 0.01
     seed: int = 0
     adapter_dropout_only: bool = False
@@ -93,48 +94,40 @@ def _pair_loss(params, adapter, x, y, phase, idx, key, rate, lambda_s, cache):
     return jnp.mean((pred - y[idx]) ** 2) + lambda_s * pfnn.l1_penalty(adapter)
 
 
-def _train_pair(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, keys_T, rate, *, learning_rate,
-                lambda_s, cache=None):
-    """Steps of one (style, rate) pair: :func:`train_scan` over ``batches_TxB`` with one PRNG key
-    per step. With ``cache`` (:func:`frozen_activations`), the adapter-path-only dropout mode."""
-    def loss_fn(a, idx, k):
-        return _pair_loss(params, a, x, y, phase, idx, k, rate, lambda_s, cache)
+@dataclasses.dataclass(frozen=True)
+class AdapterLoss:
+    """The loss of one (style, rate) cell for :func:`jaxstyle.train.scan.grid_sweep` and
+    :func:`jaxstyle.train.scan.run_pair`: the trainable tree is the adapter, ``frozen`` is
+    :func:`frozen_inputs`, the step input a batch of row indices, ``hparams`` ``{"lambda_s"}``.
+    :meth:`prepare` casts the base's weights to ``matmul_dtype`` and, with
+    ``adapter_dropout_only``, caches :func:`frozen_activations` once per compiled call."""
 
-    return train_scan(loss_fn, adapter, opt_state, batches_TxB, mask_T, keys_T, learning_rate=learning_rate)
+    adapter_dropout_only: bool = False
+    matmul_dtype: str = "float32"
+
+    def prepare(self, frozen: dict) -> dict:
+        params = pfnn.cast_weights(frozen["params"], jnp.dtype(self.matmul_dtype))
+        cache = frozen_activations(params, frozen["x"], frozen["phase"]) if self.adapter_dropout_only else None
+        return {**frozen, "params": params, "cache": cache}
+
+    def __call__(self, adapter, frozen, idx, key, rate, hparams):
+        return _pair_loss(frozen["params"], adapter, frozen["x"], frozen["y"], frozen["phase"], idx, key, rate,
+                          hparams["lambda_s"], frozen.get("cache"))
+
+
+def frozen_inputs(params: dict, x, y, phase) -> dict:
+    """The frozen tree of :class:`AdapterLoss`: the base network and all styles' rows."""
+    return {"params": params, "x": jnp.asarray(x), "y": jnp.asarray(y), "phase": jnp.asarray(phase)}
+
+
+def _loss_of(config: SweepConfig) -> AdapterLoss:
+    return AdapterLoss(config.adapter_dropout_only, config.matmul_dtype)
 
 
 def _init_pair(config: SweepConfig, key, num_steps: int):
-    """A fresh adapter, its Adam state and one dropout key per step, from the pair's key."""
+    """A fresh adapter and one dropout key per step, from the pair's key."""
     k_init, k_train = jax.random.split(key)
-    adapter = pfnn.init_adapter(k_init, config.model)
-    return adapter, optax.adam(config.learning_rate).init(adapter), jax.random.split(k_train, num_steps)
-
-
-@functools.partial(jax.jit, static_argnames=("learning_rate", "adapter_dropout_only", "matmul_dtype"),
-                   donate_argnums=(4, 5))
-def _run_grid(params, x, y, phase, adapters_SxR, opt_SxR, keys_SxRxT, rates_R, batches_SxTxB, mask_SxT, lambda_s,
-              *, learning_rate, adapter_dropout_only, matmul_dtype="float32"):
-    """The compiled sweep (one chunk of steps): vmap over styles of vmap over rates of the
-    per-pair scan; the base is closed over, i.e. broadcast to every pair."""
-    params = pfnn.cast_weights(params, jnp.dtype(matmul_dtype))
-    cache = frozen_activations(params, x, phase) if adapter_dropout_only else None
-
-    def pair(a, o, k, r, batches, mask):
-        return _train_pair(params, x, y, phase, a, o, batches, mask, k, r, cache=cache, learning_rate=learning_rate,
-                           lambda_s=lambda_s)
-
-    over_rates = jax.vmap(pair, in_axes=(0, 0, 0, 0, None, None))
-    over_styles = jax.vmap(over_rates, in_axes=(0, 0, 0, None, 0, 0))
-    return over_styles(adapters_SxR, opt_SxR, keys_SxRxT, rates_R, batches_SxTxB, mask_SxT)
-
-
-@functools.partial(jax.jit, static_argnames=("learning_rate", "adapter_dropout_only", "matmul_dtype"))
-def _run_one(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, keys_T, rate, lambda_s, *, learning_rate,
-             adapter_dropout_only, matmul_dtype="float32"):
-    params = pfnn.cast_weights(params, jnp.dtype(matmul_dtype))
-    cache = frozen_activations(params, x, phase) if adapter_dropout_only else None
-    return _train_pair(params, x, y, phase, adapter, opt_state, batches_TxB, mask_T, keys_T, rate, cache=cache,
-                       learning_rate=learning_rate, lambda_s=lambda_s)
+    return pfnn.init_adapter(k_init, config.model), jax.random.split(k_train, num_steps)
 
 
 def finetune_one(params: dict, x, y, phase, batches_TxB, mask_T, rate: float, key: jax.Array,
@@ -142,11 +135,11 @@ def finetune_one(params: dict, x, y, phase, batches_TxB, mask_T, rate: float, ke
     """Train one fresh adapter for one (style, rate) pair, with the sweep's initialisation, keys
     and data order but no vmap: the reference the sweep is tested against. Returns the adapter
     and the per-step losses."""
-    adapter, opt_state, keys = _init_pair(config, key, len(batches_TxB))
-    adapter, _, losses = _run_one(params, x, y, phase, adapter, opt_state, jnp.asarray(batches_TxB),
-                                  jnp.asarray(mask_T), keys, jnp.float32(rate), jnp.float32(config.lambda_s),
-                                  learning_rate=config.learning_rate, adapter_dropout_only=config.adapter_dropout_only,
-                                  matmul_dtype=config.matmul_dtype)
+    adapter, keys = _init_pair(config, key, len(batches_TxB))
+    adapter, _, losses = scan.run_pair(
+        _loss_of(config), adapter, optax.adam(config.learning_rate).init(adapter), frozen_inputs(params, x, y, phase),
+        jnp.asarray(batches_TxB), jnp.asarray(mask_T), keys, jnp.float32(rate),
+        {"lambda_s": jnp.float32(config.lambda_s)}, learning_rate=config.learning_rate)
     return adapter, losses
 
 
@@ -165,46 +158,14 @@ def finetune_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: S
     and the data are replicated), padding it with fully masked styles to a multiple of the device
     count; the result is the same as on one device.
     """
-    batches_SxTxB, mask_SxT = np.asarray(batches_SxTxB), np.asarray(mask_SxT)
+    batches_SxTxB = np.asarray(batches_SxTxB)
     num_styles, num_steps = batches_SxTxB.shape[:2]
     num_rates = len(config.rates)
-    padded = num_styles
-    if shard:
-        padded = -(-num_styles // jax.device_count()) * jax.device_count()
-    chunk = num_steps if chunk_steps is None else max(1, min(int(chunk_steps), num_steps))
-    total = -(-num_steps // chunk) * chunk
-    batches = np.zeros((padded, total) + batches_SxTxB.shape[2:], batches_SxTxB.dtype)
-    mask = np.zeros((padded, total), bool)
-    batches[:num_styles, :num_steps], mask[:num_styles, :num_steps] = batches_SxTxB, mask_SxT
-
     keys = jax.vmap(jax.vmap(lambda s, r: pair_key(config.seed, s, r), in_axes=(None, 0)), in_axes=(0, None))(
-        jnp.arange(padded), jnp.arange(num_rates))
-    adapters, opt_state, step_keys = jax.vmap(jax.vmap(lambda k: _init_pair(config, k, num_steps)))(keys)
-    step_keys = jnp.pad(step_keys, ((0, 0), (0, 0), (0, total - num_steps), (0, 0)))
-    batches, mask = jnp.asarray(batches), jnp.asarray(mask)
-    if shard:
-        grid = NamedSharding(Mesh(np.array(jax.devices()), ("grid",)), PartitionSpec("grid"))
-        adapters, opt_state, step_keys, batches, mask = jax.device_put(
-            (adapters, opt_state, step_keys, batches, mask), grid)
-    rates = jnp.asarray(config.rates, jnp.float32)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=num_steps, desc=f"sweep {num_styles} styles x {num_rates} rates", unit="step")
-    losses = []
-    for a in range(0, total, chunk):
-        b = a + chunk
-        adapters, opt_state, chunk_losses = _run_grid(
-            params, x, y, phase, adapters, opt_state, step_keys[:, :, a:b], rates, batches[:, a:b], mask[:, a:b],
-            jnp.float32(config.lambda_s), learning_rate=config.learning_rate,
-            adapter_dropout_only=config.adapter_dropout_only, matmul_dtype=config.matmul_dtype)
-        losses.append(chunk_losses)
-        if bar is not None:
-            jax.block_until_ready(chunk_losses)
-            bar.update(min(b, num_steps) - a)
-            bar.set_postfix(loss=f"{float(jnp.nanmean(chunk_losses)):.4f}")
-    if bar is not None:
-        bar.close()
-    losses = jnp.concatenate(losses, axis=2)[:num_styles, :, :num_steps]
-    return jax.tree.map(lambda v: v[:num_styles], adapters), losses
+        jnp.arange(num_styles), jnp.arange(num_rates))
+    adapters, step_keys = jax.vmap(jax.vmap(lambda k: _init_pair(config, k, num_steps)))(keys)
+    return scan.grid_sweep(_loss_of(config), adapters, frozen_inputs(params, x, y, phase), batches_SxTxB, mask_SxT,
+                           step_keys, jnp.asarray(config.rates, jnp.float32), learning_rate=config.learning_rate,
+                           hparams={"lambda_s": jnp.float32(config.lambda_s)}, chunk_steps=chunk_steps, shard=shard,
+                           progress=progress,
+                           desc=f"sweep {num_styles} styles x {num_rates} rates")

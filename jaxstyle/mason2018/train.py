@@ -14,7 +14,6 @@ Data parallelism: with ``data_parallel=True`` the batch axis is sharded over all
 from __future__ import annotations
 
 import dataclasses
-import time
 from pathlib import Path
 from typing import NamedTuple
 
@@ -27,8 +26,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxstyle.data.batching import balanced_batches
 from jaxstyle.mason2018 import fewshot
 from jaxstyle.nn import pfnn
-from jaxstyle.train import runlog
-from jaxstyle.train.checkpoint import Checkpointer
+from jaxstyle.train import scan
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,26 +79,22 @@ def init_state(key: jax.Array, config: TrainConfig, num_styles: int) -> dict:
 
 
 def _make_chunk_fn(config: TrainConfig, optimiser):
-    def step(carry, inputs):
-        (params, adapters), opt_state, x, y, phase = carry
-        idx, style, key = inputs
-
-        def objective(trainable):
-            p, a = trainable
-            adapter = jax.tree.map(lambda v: v[style], a)
-            return pfnn.loss(p, adapter, x[idx], y[idx], phase[idx], key=key, dropout_rate=config.dropout_rate,
-                             lambda_ag=config.lambda_ag, lambda_s=config.lambda_s)
-
-        value, grads = jax.value_and_grad(objective)((params, adapters))
-        updates, opt_state = optimiser.update(grads, opt_state)
-        return (optax.apply_updates((params, adapters), updates), opt_state, x, y, phase), value
+    """The compiled steps of base training: ``run(trainable, opt_state, x, y, phase, batches, styles,
+    key) -> (trainable, opt_state, losses)``, :func:`jaxstyle.train.scan.train_scan` over the
+    base and all adapters (each step uses its batch's style's adapter), one key per step split
+    from ``key``."""
+    def objective(trainable, inputs, key, x, y, phase):
+        idx, style = inputs
+        p, a = trainable
+        adapter = jax.tree.map(lambda v: v[style], a)
+        return pfnn.loss(p, adapter, x[idx], y[idx], phase[idx], key=key, dropout_rate=config.dropout_rate,
+                         lambda_ag=config.lambda_ag, lambda_s=config.lambda_s)
 
     @jax.jit
     def run(trainable, opt_state, x, y, phase, batches, styles, key):
         keys = jax.random.split(key, batches.shape[0])
-        (trainable, opt_state, *_), losses = jax.lax.scan(step, (trainable, opt_state, x, y, phase),
-                                                          (batches, styles, keys))
-        return trainable, opt_state, losses
+        return scan.train_scan(lambda t, inputs, k: objective(t, inputs, k, x, y, phase), trainable, opt_state,
+                               (batches, styles), jnp.ones(batches.shape[0], bool), keys, optimizer=optimiser)
 
     return run
 
@@ -152,63 +146,42 @@ def train(data: TrainData, config: TrainConfig, directory: str | Path | None = N
       progress: a tqdm bar per epoch with the running loss.
       stop_after_epochs: end this call after that many epochs (to test resuming).
     """
-    ckpt = Checkpointer(directory, {"train": config, "styles": list(data.styles)}) if directory else None
-    state = init_state(jax.random.PRNGKey(config.seed), config, len(data.styles))
-    if ckpt is not None and ckpt.latest_step() is not None:
-        state = ckpt.restore(state)
-    start = int(state["epoch"])
-    optimiser = optax.adam(config.learning_rate)
-    run_chunk = _make_chunk_fn(config, optimiser)
+    run_chunk = _make_chunk_fn(config, optax.adam(config.learning_rate))
     x, y, phase = jnp.asarray(data.x), jnp.asarray(data.y), jnp.asarray(data.phase)
     style_of_row = np.zeros(len(data.x), np.int32)
     for s, rows in enumerate(data.train_rows):
         style_of_row[rows] = s
-    log_path = Path(directory) / "log.csv" if directory else None
-    if log_path is not None:
-        runlog.truncate_log(log_path, start)
-    trainable, opt_state = (state["params"], state["adapters"]), state["opt_state"]
-    done = 0
-    for epoch in range(start, config.epochs):
-        if stop_after_epochs is not None and done >= stop_after_epochs:
-            break
-        t0 = time.perf_counter()
+
+    def plan_epoch(epoch):
         mirror = data.mirror_of if config.half_mirrored else None
         batches = balanced_batches(data.train_rows, config.batch_size, seed=config.seed * 100_003 + epoch,
                                    mirror_of=mirror)
         styles = jnp.asarray(style_of_row[batches[:, 0]])
         batches_dev = _shard(batches, data_parallel)
         key = jax.random.fold_in(jax.random.PRNGKey(config.seed), epoch)
-        losses = []
-        bar = runlog.progress_bar(len(batches), f"epoch {epoch + 1}/{config.epochs}", progress)
-        for a in range(0, len(batches), config.log_every):
-            b = min(a + config.log_every, len(batches))
-            trainable, opt_state, chunk_losses = run_chunk(trainable, opt_state, x, y, phase, batches_dev[a:b],
-                                                           styles[a:b], jax.random.fold_in(key, a))
-            losses.append(np.asarray(chunk_losses))
-            if bar is not None:
-                bar.update(b - a)
-                bar.set_postfix(loss=f"{float(np.mean(losses[-1])):.4f}")
-        if bar is not None:
-            bar.close()
-        val = validation_losses(trainable[0], trainable[1], data)
-        state = {"params": trainable[0], "adapters": trainable[1], "opt_state": opt_state,
-                 "epoch": jnp.asarray(epoch + 1, jnp.int32)}
-        if ckpt is not None:
-            ckpt.save(epoch + 1, state)
-            _append_log(log_path, epoch + 1, float(np.mean(np.concatenate(losses))), val, data.styles,
-                        time.perf_counter() - t0)
-        done += 1
-    if ckpt is not None:
-        ckpt.close()
-    state.update({"params": trainable[0], "adapters": trainable[1], "opt_state": opt_state})
-    return state
+
+        def chunk(state, a, b):
+            (params, adapters), opt_state, losses = run_chunk(
+                (state["params"], state["adapters"]), state["opt_state"], x, y, phase, batches_dev[a:b],
+                styles[a:b], jax.random.fold_in(key, a))
+            return {**state, "params": params, "adapters": adapters, "opt_state": opt_state}, losses
+
+        return len(batches), chunk
+
+    def end_epoch(epoch, state, losses):
+        return _log_row(float(np.mean(losses)), validation_losses(state["params"], state["adapters"], data),
+                        data.styles)
+
+    return scan.fit(init_state(jax.random.PRNGKey(config.seed), config, len(data.styles)), config.epochs,
+                    plan_epoch, directory=directory, run_config={"train": config, "styles": list(data.styles)},
+                    log_every=config.log_every, end_epoch=end_epoch, progress=progress,
+                    stop_after_epochs=stop_after_epochs)
 
 
-def _append_log(path: Path, epoch: int, train_loss: float, val: np.ndarray, styles, seconds: float) -> None:
+def _log_row(train_loss: float, val: np.ndarray, styles) -> dict:
     mean = float(np.mean(val[np.isfinite(val)])) if np.isfinite(val).any() else float("nan")
     per_style = {f"val_{s}": f"{v:.6f}" for s, v in zip(styles, val, strict=True)}
-    runlog.append_log(path, {"epoch": epoch, "train_loss": f"{train_loss:.6f}", "val_loss_mean": f"{mean:.6f}",
-                             "seconds": f"{seconds:.2f}", **per_style})
+    return {"train_loss": f"{train_loss:.6f}", "val_loss_mean": f"{mean:.6f}", "seconds": None, **per_style}
 
 
 def finetune_adapter(params: dict, adapter: dict, data: TrainData, style: int, config: TrainConfig) -> dict:
@@ -223,10 +196,9 @@ def finetune_adapter(params: dict, adapter: dict, data: TrainData, style: int, c
     rng = np.random.default_rng(config.seed)
     batches = np.concatenate([rng.permutation(rows)[:per_epoch * config.batch_size].reshape(per_epoch, -1)
                               for _ in range(config.epochs)])
-    opt_state = optax.adam(config.learning_rate).init(adapter)
     keys = jax.random.split(jax.random.PRNGKey(config.seed), len(batches))
-    adapter, _, _ = fewshot._run_one(params, jnp.asarray(data.x), jnp.asarray(data.y), jnp.asarray(data.phase),
-                                     adapter, opt_state, jnp.asarray(batches), jnp.ones(len(batches), bool), keys,
-                                     jnp.float32(config.dropout_rate), jnp.float32(config.lambda_s),
-                                     learning_rate=config.learning_rate, adapter_dropout_only=False)
+    adapter, _, _ = scan.run_pair(fewshot.AdapterLoss(), adapter, optax.adam(config.learning_rate).init(adapter),
+                                  fewshot.frozen_inputs(params, data.x, data.y, data.phase), jnp.asarray(batches),
+                                  jnp.ones(len(batches), bool), keys, jnp.float32(config.dropout_rate),
+                                  {"lambda_s": jnp.float32(config.lambda_s)}, learning_rate=config.learning_rate)
     return adapter

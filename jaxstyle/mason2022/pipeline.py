@@ -38,10 +38,11 @@ from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import viz
+from jaxstyle.train.defaults import FILM_DEFAULT_RATES
 
 PAPER_NEW_STYLES = ("Elated", "Rushed")
 """The new (held-out) styles of ``experiments/mason2022_styles.py`` in the shared 100STYLE sample."""
-FINETUNE_RATES = train_lpn.FiLMFinetuneConfig().rates
+FINETUNE_RATES = FILM_DEFAULT_RATES
 """Dropout rates of the FiLM fine-tuning sweep."""
 MODEL = "LPN FiLM"
 """The paper's model, the one whose FiLM generator is fine-tuned on new styles."""

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import time
 from pathlib import Path
 from typing import NamedTuple, Sequence
 
@@ -39,8 +38,9 @@ from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import lpn, style_models
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.train import runlog, scan
+from jaxstyle.train import scan
 from jaxstyle.train.checkpoint import Checkpointer
+from jaxstyle.train.defaults import FILM_DEFAULT_RATES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,18 +171,16 @@ def init_state(key: jax.Array, config: LPNTrainConfig) -> dict:
 @functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate"))
 def _train_chunk(params, opt_state, arrays, batches_TxB, styles_T, clips_T, keys_T, rate, weight, *,
                  config: StyleModelConfig, bones: BonePositions, learning_rate: float):
-    optimiser = optax.adam(learning_rate)
+    """Steps of full training (:func:`jaxstyle.train.scan.train_scan`, no masked step); per step
+    ``(loss, mse, bll)``."""
+    def loss_fn(p, inputs, key):
+        idx, style, clip = inputs
+        return batch_loss(p, config, arrays, idx, style, clip, key, rate, _bones(bones), weight)
 
-    def step(carry, inputs):
-        p, opt = carry
-        idx, style, clip, key = inputs
-        (value, parts), grads = jax.value_and_grad(batch_loss, has_aux=True)(
-            p, config, arrays, idx, style, clip, key, rate, _bones(bones), weight)
-        updates, opt = optimiser.update(grads, opt)
-        return (optax.apply_updates(p, updates), opt), jnp.stack([value, *parts])
-
-    (params, opt_state), out = jax.lax.scan(step, (params, opt_state), (batches_TxB, styles_T, clips_T, keys_T))
-    return params, opt_state, out
+    params, opt_state, (value, parts) = scan.train_scan(
+        loss_fn, params, opt_state, (batches_TxB, styles_T, clips_T), jnp.ones(len(batches_TxB), bool), keys_T,
+        learning_rate=learning_rate, has_aux=True)
+    return params, opt_state, jnp.stack([value, *parts], axis=1)
 
 
 class _Static:
@@ -229,54 +227,33 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
     early (to test resuming)."""
     if config.model.num_styles != len(data.styles):
         raise ValueError(f"the model has {config.model.num_styles} styles, the data {len(data.styles)}")
-    ckpt = Checkpointer(directory, {"train": config, "styles": list(data.styles)}) if directory else None
-    state = init_state(jax.random.PRNGKey(config.seed), config)
-    if ckpt is not None and ckpt.latest_step() is not None:
-        state = ckpt.restore(state)
-    start = int(state["epoch"])
     arrays = _device_arrays(data)
     bones = _Static(data.bones)
-    log_path = Path(directory) / "log.csv" if directory else None
-    if log_path is not None:
-        runlog.truncate_log(log_path, start)
-    params, opt_state = state["params"], state["opt_state"]
-    done = 0
-    for epoch in range(start, config.epochs):
-        if stop_after_epochs is not None and done >= stop_after_epochs:
-            break
-        t0 = time.perf_counter()
+
+    def plan_epoch(epoch):
         batches, styles, clips = epoch_batches(data, config, epoch)
         keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(config.seed), epoch), len(batches))
-        bar = runlog.progress_bar(len(batches), f"epoch {epoch + 1}/{config.epochs}", progress)
-        parts = []
-        for a in range(0, len(batches), config.log_every):
-            b = min(a + config.log_every, len(batches))
+
+        def run_chunk(state, a, b):
             params, opt_state, out = _train_chunk(
-                params, opt_state, arrays, jnp.asarray(batches[a:b]), jnp.asarray(styles[a:b]),
+                state["params"], state["opt_state"], arrays, jnp.asarray(batches[a:b]), jnp.asarray(styles[a:b]),
                 jnp.asarray(clips[a:b]), keys[a:b], jnp.float32(config.dropout_rate),
                 jnp.float32(config.bone_loss_weight), config=config.model, bones=bones,
                 learning_rate=config.learning_rate)
-            parts.append(np.asarray(out))
-            if bar is not None:
-                bar.update(b - a)
-                bar.set_postfix(loss=f"{float(parts[-1][:, 0].mean()):.4f}")
-        if bar is not None:
-            bar.close()
-        out = np.concatenate(parts)
-        if not np.isfinite(out).all():
-            raise FloatingPointError(f"training loss became non-finite in epoch {epoch + 1}")
-        state = {"params": params, "opt_state": opt_state, "epoch": jnp.asarray(epoch + 1, jnp.int32)}
-        if ckpt is not None:
-            val = evaluate(params, config.model, data, "validation")
-            ckpt.save(epoch + 1, state)
-            runlog.append_log(log_path, {
-                "epoch": epoch + 1, "train_loss": f"{out[:, 0].mean():.6f}", "train_mse": f"{out[:, 1].mean():.6f}",
+            return {**state, "params": params, "opt_state": opt_state}, out
+
+        return len(batches), run_chunk
+
+    def end_epoch(epoch, state, out):
+        val = evaluate(state["params"], config.model, data, "validation")
+        return {"train_loss": f"{out[:, 0].mean():.6f}", "train_mse": f"{out[:, 1].mean():.6f}",
                 "train_bll": f"{out[:, 2].mean():.6f}", "val_mse": f"{np.nanmean(val['mse']):.6f}",
-                "val_bll": f"{np.nanmean(val['bll']):.6f}", "seconds": f"{time.perf_counter() - t0:.2f}"})
-        done += 1
-    if ckpt is not None:
-        ckpt.close()
-    return state
+                "val_bll": f"{np.nanmean(val['bll']):.6f}"}
+
+    return scan.fit(init_state(jax.random.PRNGKey(config.seed), config), config.epochs, plan_epoch,
+                    directory=directory, run_config={"train": config, "styles": list(data.styles)},
+                    log_every=config.log_every, end_epoch=end_epoch, progress=progress,
+                    stop_after_epochs=stop_after_epochs)
 
 
 def load(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str]) -> dict:
@@ -331,6 +308,8 @@ def evaluate(params: dict, config: StyleModelConfig, data: StyleData, split: str
 
 # --- new styles: fine-tune the FiLM generator ---------------------------------------------------
 
+
+
 @dataclasses.dataclass(frozen=True)
 class FiLMFinetuneConfig:
     """Fine-tuning of the FiLM generator on new styles, every style x dropout rate in one program."""
@@ -338,7 +317,7 @@ class FiLMFinetuneConfig:
     epochs: int = 10
     batch_size: int = 32
     learning_rate: float = 1e-4
-    rates: tuple[float, ...] = (0.1, 0.3, 0.5)
+    rates: tuple[float, ...] = FILM_DEFAULT_RATES
     bone_loss_weight: float = 1.0
     max_steps: int | None = None
     seed: int = 0
@@ -356,67 +335,51 @@ def finetune_batches(data: StyleData, config: FiLMFinetuneConfig) -> tuple[np.nd
     return batches, clips, mask
 
 
-@functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate"), donate_argnums=(1, 2))
-def _film_grid(frozen, generators_SxR, opt_SxR, arrays, batches_SxTxB, clips_SxT, mask_SxT, keys_SxRxT, rates_R,
-               weight, *, config, bones, learning_rate):
-    """One chunk of steps of every (style, rate) pair: vmap over styles of vmap over rates of
-    :func:`jaxstyle.train.scan.train_scan`; the frozen network is closed over (broadcast)."""
-    def pair(gen, opt, keys_T, rate, batches, clips, mask):
-        def loss_fn(g, inputs, key):
-            idx, clip = inputs
-            params = {**frozen, "style": {"generator": g}}
-            return batch_loss(params, config, arrays, idx, 0, clip, key, rate, _bones(bones), weight)[0]
+@dataclasses.dataclass(frozen=True)
+class GeneratorLoss:
+    """The loss of one (style, rate) cell of :func:`finetune_film_sweep` for
+    :func:`jaxstyle.train.scan.grid_sweep`: the trainable tree is the FiLM generator, ``frozen``
+    ``{"params": the network without "style", "arrays": (x, y, gate, clips)}``, the step input
+    ``(rows, clip)``, ``hparams`` ``{"weight"}`` (the bone-length loss weight)."""
 
-        return scan.train_scan(loss_fn, gen, opt, (batches, clips), mask, keys_T, learning_rate=learning_rate)
+    config: StyleModelConfig
+    bones: _Static
 
-    over_rates = jax.vmap(pair, in_axes=(0, 0, 0, 0, None, None, None))
-    over_styles = jax.vmap(over_rates, in_axes=(0, 0, 0, None, 0, 0, 0))
-    return over_styles(generators_SxR, opt_SxR, keys_SxRxT, rates_R, batches_SxTxB, clips_SxT, mask_SxT)
+    def __call__(self, generator, frozen, inputs, key, rate, hparams):
+        idx, clip = inputs
+        params = {**frozen["params"], "style": {"generator": generator}}
+        return batch_loss(params, self.config, frozen["arrays"], idx, 0, clip, key, rate, _bones(self.bones),
+                          hparams["weight"])[0]
 
 
 def finetune_film_sweep(params: dict, config: StyleModelConfig, data: StyleData,
                         finetune: FiLMFinetuneConfig = FiLMFinetuneConfig(), *, chunk_steps: int | None = None,
-                        progress: bool = False) -> tuple[dict, np.ndarray]:
+                        progress: bool = False, shard: bool = False) -> tuple[dict, np.ndarray]:
     """Fine-tune the FiLM generator on every style of ``data`` (new styles, normalised with the
     base statistics) at every rate of ``finetune.rates``, the synthesis network and gating frozen
-    (closed over, broadcast to all pairs; gradients for the generator only). Returns generators
-    stacked ``(S, R, ...)`` and per-step losses ``(S, R, T)`` (NaN on padded steps). Keys depend
-    only on the seed, the style's index and the rate's index, as in the 2018 sweep.
+    (broadcast to all pairs; gradients for the generator only). Returns generators stacked
+    ``(S, R, ...)`` and per-step losses ``(S, R, T)`` (NaN on padded steps). Keys depend only on
+    the seed, the style's index and the rate's index, as in the 2018 sweep; both sweeps are
+    :func:`jaxstyle.train.scan.grid_sweep` with their own loss.
 
     ``chunk_steps`` runs the steps in chunks (one compiled program, called once per chunk, the
-    last chunk padded with masked steps) so ``progress=True`` can move a bar; same result."""
+    last chunk padded with masked steps) so ``progress=True`` can move a bar; same result.
+    ``shard=True`` spreads the style axis over all devices; same result."""
     if config.modulation != "film":
         raise ValueError(f"fine-tuning the FiLM generator needs a FiLM model, got {config.modulation!r}")
     batches, clips, mask = finetune_batches(data, finetune)
     num_styles, num_rates, steps = batches.shape[0], len(finetune.rates), batches.shape[1]
-    chunk = steps if chunk_steps is None else max(1, min(int(chunk_steps), steps))
-    total = -(-steps // chunk) * chunk
-    pad = ((0, 0), (0, total - steps))
-    batches = np.pad(batches, pad + ((0, 0),))
-    clips, mask = np.pad(clips, pad), np.pad(mask, pad)
     keys = jnp.stack([jnp.stack([jax.random.split(scan.pair_key(finetune.seed, s, r), steps)
                                  for r in range(num_rates)]) for s in range(num_styles)])
-    keys = jnp.pad(keys, ((0, 0), (0, 0), (0, total - steps), (0, 0)))
-    frozen = {k: v for k, v in params.items() if k != "style"}
-    gens = jax.tree.map(lambda v: jnp.broadcast_to(v, (num_styles, num_rates) + v.shape).copy(),
+    frozen = {"params": {k: v for k, v in params.items() if k != "style"}, "arrays": _device_arrays(data)}
+    gens = jax.tree.map(lambda v: jnp.broadcast_to(v, (num_styles, num_rates) + v.shape),
                         params["style"]["generator"])
-    opt = jax.vmap(jax.vmap(optax.adam(finetune.learning_rate).init))(gens)
-    arrays, rates = _device_arrays(data), jnp.asarray(finetune.rates, jnp.float32)
-    bar = runlog.progress_bar(steps, f"FiLM fine-tuning {num_styles} styles x {num_rates} rates", progress)
-    per_step = []
-    for a in range(0, total, chunk):
-        b = a + chunk
-        gens, opt, out = _film_grid(frozen, gens, opt, arrays, jnp.asarray(batches[:, a:b]),
-                                    jnp.asarray(clips[:, a:b]), jnp.asarray(mask[:, a:b]), keys[:, :, a:b], rates,
-                                    jnp.float32(finetune.bone_loss_weight), config=config,
-                                    bones=_Static(data.bones), learning_rate=finetune.learning_rate)
-        per_step.append(np.asarray(out))
-        if bar is not None:
-            bar.update(min(b, steps) - a)
-            bar.set_postfix(loss=f"{float(np.nanmean(per_step[-1])):.4f}")
-    if bar is not None:
-        bar.close()
-    return gens, np.concatenate(per_step, axis=2)[:, :, :steps]
+    gens, per_step = scan.grid_sweep(
+        GeneratorLoss(config, _Static(data.bones)), gens, frozen, (batches, clips), mask, keys,
+        jnp.asarray(finetune.rates, jnp.float32), learning_rate=finetune.learning_rate,
+        hparams={"weight": jnp.float32(finetune.bone_loss_weight)}, chunk_steps=chunk_steps, shard=shard,
+        progress=progress, desc=f"FiLM fine-tuning {num_styles} styles x {num_rates} rates")
+    return gens, np.asarray(per_step)
 
 
 def with_generator(params: dict, generators: dict, style: int, rate: int) -> dict:

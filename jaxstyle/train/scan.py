@@ -1,18 +1,42 @@
-"""The training loop both papers share: Adam steps as one ``lax.scan`` with a mask for padded steps,
-per-style batch plans for (style, rate) sweeps, and the PRNG key of each grid cell.
+"""The training drivers both papers share.
 
-The 2018 few-shot adapter sweep and the 2022 FiLM generator sweep are two uses of these functions:
-each vmaps :func:`train_scan` over styles and rates, with its own loss and frozen network closed over.
+* :func:`train_scan`: Adam (or any optax) steps as one ``lax.scan``, gradients for a trainable tree
+  only, with a mask for padded steps.
+* :func:`grid_sweep`: the (set, rate) grid of fine-tuning runs as ONE compiled program, ``jit`` of
+  ``vmap`` over sets of ``vmap`` over rates of :func:`train_scan`; the frozen tree is broadcast
+  (``in_axes=None``, never copied per pair), the rate is a traced array (not a Python branch), the
+  steps may run in chunks under a progress bar, the set axis may be sharded over all devices.
+  :func:`run_pair` is one cell of that grid without the vmaps (the reference the grid is tested
+  against, and a single fine-tuning run). The 2018 few-shot adapter sweep
+  (:func:`jaxstyle.mason2018.fewshot.finetune_sweep`) and the 2022 FiLM generator sweep
+  (:func:`jaxstyle.mason2022.train.finetune_film_sweep`) are two uses of it with their own losses.
+* :func:`fit`: the epoch loop of a full training run (resume from the last checkpoint, chunks of
+  steps under a progress bar, a finite-loss check, a checkpoint and a ``log.csv`` row per epoch),
+  used by :func:`jaxstyle.mason2018.train.train` and :func:`jaxstyle.mason2022.train.train`.
+* :func:`sweep_batches` and :func:`pair_key`: per-set batch plans and the PRNG key of each cell.
+
+A grid loss is a hashable callable (a frozen dataclass, or a module-level function) called as
+``loss_fn(trainable, frozen, step_inputs, key, rate, hparams) -> scalar``; it may have a
+``prepare(frozen) -> frozen`` method, run once per compiled call outside the vmaps (casting weights,
+caching activations that no step changes). It is a static argument of the compiled programs, so an
+equal loss object reuses the compiled program.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+import functools
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+
+from jaxstyle.train import runlog
+from jaxstyle.train.checkpoint import Checkpointer
+from jaxstyle.train.defaults import DEFAULT_RATES  # noqa: F401  (re-exported)
 
 
 def sweep_batches(rows_per_style: Sequence[np.ndarray], epochs: int, batch_size: int, seed: int = 0
@@ -42,23 +66,35 @@ def sweep_batches(rows_per_style: Sequence[np.ndarray], epochs: int, batch_size:
     return batches, mask
 
 
-def train_scan(loss_fn, trainable, opt_state, inputs_T, mask_T, keys_T, *, learning_rate: float):
-    """Adam steps as one ``lax.scan``: step ``t`` takes the gradient of
+def _optimiser(learning_rate: float | None, optimizer: optax.GradientTransformation | None):
+    if optimizer is not None:
+        return optimizer
+    if learning_rate is None:
+        raise TypeError("pass learning_rate (Adam) or an optax optimizer")
+    return optax.adam(learning_rate)
+
+
+def train_scan(loss_fn, trainable, opt_state, inputs_T, mask_T, keys_T, *, learning_rate: float | None = None,
+               optimizer: optax.GradientTransformation | None = None, has_aux: bool = False):
+    """Optimiser steps as one ``lax.scan``: step ``t`` takes the gradient of
     ``loss_fn(trainable, inputs_T[t], keys_T[t])`` with respect to ``trainable`` alone (whatever
     else the loss uses is closed over, i.e. frozen); masked steps (``mask_T[t]`` false) change
-    nothing. Returns the trained tree, the optimiser state and per-step losses (NaN when masked).
-    The 2018 adapter sweep (:mod:`jaxstyle.mason2018.fewshot`) and the 2022 FiLM generator sweep
-    (:mod:`jaxstyle.mason2022.train`) vmap this function over their (style, rate) grids."""
-    optimiser = optax.adam(learning_rate)
+    nothing. The optimiser is ``optax.adam(learning_rate)`` unless ``optimizer`` is given.
+
+    Returns the trained tree, the optimiser state and per-step losses (NaN when masked); with
+    ``has_aux`` the loss returns ``(value, aux)`` and the last result is ``(losses, aux_T)``, the
+    aux tree NaN on masked steps too."""
+    optimiser = _optimiser(learning_rate, optimizer)
 
     def step(carry, inputs):
         a, opt = carry
         step_inputs, real, k = inputs
-        value, grads = jax.value_and_grad(loss_fn)(a, step_inputs, k)
-        updates, new_opt = optimiser.update(grads, opt)
+        value, grads = jax.value_and_grad(loss_fn, has_aux=has_aux)(a, step_inputs, k)
+        updates, new_opt = optimiser.update(grads, opt, a)
         new_a = optax.apply_updates(a, updates)
         keep = lambda new, old: jnp.where(real, new, old)  # noqa: E731
-        return (jax.tree.map(keep, new_a, a), jax.tree.map(keep, new_opt, opt)), jnp.where(real, value, jnp.nan)
+        hide = lambda v: jnp.where(real, v, jnp.nan)  # noqa: E731
+        return (jax.tree.map(keep, new_a, a), jax.tree.map(keep, new_opt, opt)), jax.tree.map(hide, value)
 
     (trainable, opt_state), losses = jax.lax.scan(step, (trainable, opt_state), (inputs_T, mask_T, keys_T))
     return trainable, opt_state, losses
@@ -67,3 +103,198 @@ def train_scan(loss_fn, trainable, opt_state, inputs_T, mask_T, keys_T, *, learn
 def pair_key(seed: int, style: int, rate_index: int) -> jax.Array:
     """The PRNG key of one (style, rate) pair: its adapter's initial values and dropout masks."""
     return jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), style), rate_index)
+
+
+# --- the (set, rate) grid ------------------------------------------------------------------------
+
+def _prepared(loss_fn, frozen):
+    prepare = getattr(loss_fn, "prepare", None)
+    return frozen if prepare is None else prepare(frozen)
+
+
+def _pair_scan(loss_fn, trainable, opt_state, frozen, inputs_T, mask_T, keys_T, rate, hparams, learning_rate,
+               optimizer):
+    def loss(t, step_inputs, key):
+        return loss_fn(t, frozen, step_inputs, key, rate, hparams)
+
+    return train_scan(loss, trainable, opt_state, inputs_T, mask_T, keys_T, learning_rate=learning_rate,
+                      optimizer=optimizer)
+
+
+@functools.partial(jax.jit, static_argnames=("loss_fn", "learning_rate", "optimizer"))
+def run_pair(loss_fn, trainable, opt_state, frozen, inputs_T, mask_T, keys_T, rate, hparams=None, *,
+             learning_rate: float | None = None, optimizer: optax.GradientTransformation | None = None):
+    """One cell of :func:`grid_sweep` (one set, one rate) without the vmaps, compiled: the steps of
+    ``inputs_T`` (a tree of ``(T, ...)`` arrays), ``mask_T (T,)`` and ``keys_T (T, 2)`` from
+    ``trainable`` and ``opt_state``. Returns ``(trainable, opt_state, losses_T)``."""
+    return _pair_scan(loss_fn, trainable, opt_state, _prepared(loss_fn, frozen), inputs_T, mask_T, keys_T, rate,
+                      hparams, learning_rate, optimizer)
+
+
+@functools.partial(jax.jit, static_argnames=("loss_fn", "learning_rate", "optimizer"),
+                   donate_argnames=("trainable_GxR", "opt_GxR"))
+def _grid_chunk(loss_fn, trainable_GxR, opt_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT, rates_R, hparams, *,
+                learning_rate, optimizer):
+    """One chunk of steps of every (set, rate) cell: vmap over sets of vmap over rates of the
+    per-cell scan; ``frozen`` and ``hparams`` broadcast (``in_axes=None``) to every cell."""
+    frozen = _prepared(loss_fn, frozen)
+
+    def cell(t, o, k, r, inputs, mask, fz, hp):
+        return _pair_scan(loss_fn, t, o, fz, inputs, mask, k, r, hp, learning_rate, optimizer)
+
+    over_rates = jax.vmap(cell, in_axes=(0, 0, 0, 0, None, None, None, None))
+    over_sets = jax.vmap(over_rates, in_axes=(0, 0, 0, None, 0, 0, None, None))
+    return over_sets(trainable_GxR, opt_GxR, keys_GxRxT, rates_R, inputs_GxT, mask_GxT, frozen, hparams)
+
+
+def _pad_axis(v, axis: int, n: int, *, edge: bool = False):
+    """``v`` with ``n`` entries appended along ``axis``: zeros, or copies of the last entry."""
+    if n == 0:
+        return v
+    if edge:
+        last = jax.lax.slice_in_dim(jnp.asarray(v), v.shape[axis] - 1, v.shape[axis], axis=axis)
+        return jnp.concatenate([v, jnp.repeat(last, n, axis=axis)], axis=axis)
+    widths = [(0, 0)] * v.ndim
+    widths[axis] = (0, n)
+    return jnp.pad(v, widths) if isinstance(v, jax.Array) else np.pad(np.asarray(v), widths)
+
+
+def grid_sweep(loss_fn, trainable_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT, rates_R, *,
+               learning_rate: float | None = None, optimizer: optax.GradientTransformation | None = None,
+               hparams: Any = None, opt_state_GxR: Any = None, chunk_steps: int | None = None, shard: bool = False,
+               progress: bool = False, desc: str | None = None) -> tuple[Any, jax.Array]:
+    """Train every (set, rate) cell of a grid in one compiled program.
+
+    Args:
+      loss_fn: ``loss_fn(trainable, frozen, step_inputs, key, rate, hparams) -> scalar``, hashable
+        (see the module docstring), optionally with ``prepare(frozen)``.
+      trainable_GxR: the tree trained, leaves stacked ``(G, R, ...)`` (one start per cell; not
+        modified: the driver trains a copy).
+      frozen: a tree the loss reads and no step changes (network, data), broadcast to every cell.
+      inputs_GxT: a tree of ``(G, T, ...)`` per-set step inputs (e.g. batch row indices).
+      mask_GxT: ``(G, T)`` real steps; masked steps change nothing and report NaN.
+      keys_GxRxT: ``(G, R, T, 2)`` one raw PRNG key per cell and step.
+      rates_R: ``(R,)`` the per-rate hyperparameter (or a tree of ``(R, ...)`` arrays), traced.
+      learning_rate / optimizer: ``optax.adam(learning_rate)``, or an optax optimizer (reuse the
+        same object to reuse the compiled program).
+      hparams: a tree of arrays shared by all cells (traced: changing a value does not recompile).
+      opt_state_GxR: the optimiser state per cell; default a fresh one.
+      chunk_steps: run the steps in chunks of that many (one compiled program called
+        ``ceil(T / chunk_steps)`` times, the last chunk padded with masked steps), so ``progress``
+        can move a bar between chunks; same result as one call.
+      progress / desc: a progress bar (moving between chunks) and its title.
+      shard: spread the set axis over all devices (a 1-D mesh, ``frozen`` replicated), padded
+        with fully masked sets to a multiple of the device count; same result as one device.
+
+    Returns the trained tree ``(G, R, ...)`` and per-step losses ``(G, R, T)``.
+    """
+    if isinstance(rates_R, (tuple, list)):
+        rates_R = jnp.asarray(rates_R, jnp.float32)
+    mask = np.asarray(mask_GxT, bool)
+    num_sets, num_steps = mask.shape
+    num_rates = jax.tree.leaves(rates_R)[0].shape[0]
+    padded = num_sets
+    if shard:
+        padded = -(-num_sets // jax.device_count()) * jax.device_count()
+    chunk = num_steps if chunk_steps is None else max(1, min(int(chunk_steps), num_steps))
+    total = -(-num_steps // chunk) * chunk
+
+    inputs = jax.tree.map(lambda v: _pad_axis(_pad_axis(np.asarray(v), 0, padded - num_sets), 1, total - num_steps),
+                          inputs_GxT)
+    mask = _pad_axis(_pad_axis(mask, 0, padded - num_sets), 1, total - num_steps)
+    keys = _pad_axis(_pad_axis(jnp.asarray(keys_GxRxT), 0, padded - num_sets), 2, total - num_steps)
+    trainable = jax.tree.map(lambda v: _pad_axis(jnp.array(v, copy=True), 0, padded - num_sets, edge=True),
+                             trainable_GxR)
+    if opt_state_GxR is None:
+        opt = jax.vmap(jax.vmap(_optimiser(learning_rate, optimizer).init))(trainable)
+    else:
+        opt = jax.tree.map(lambda v: _pad_axis(jnp.array(v, copy=True), 0, padded - num_sets, edge=True),
+                           opt_state_GxR)
+    inputs, mask = jax.tree.map(jnp.asarray, inputs), jnp.asarray(mask)
+    if shard:
+        from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+        grid = NamedSharding(Mesh(np.array(jax.devices()), ("grid",)), PartitionSpec("grid"))
+        trainable, opt, keys, inputs, mask = jax.device_put((trainable, opt, keys, inputs, mask), grid)
+    bar = runlog.progress_bar(num_steps, desc or f"sweep {num_sets} sets x {num_rates} rates", progress)
+    losses = []
+    for a in range(0, total, chunk):
+        b = a + chunk
+        trainable, opt, chunk_losses = _grid_chunk(
+            loss_fn, trainable, opt, frozen, jax.tree.map(lambda v, a=a, b=b: v[:, a:b], inputs), mask[:, a:b],
+            keys[:, :, a:b], rates_R, hparams, learning_rate=learning_rate, optimizer=optimizer)
+        losses.append(chunk_losses)
+        if bar is not None:
+            jax.block_until_ready(chunk_losses)
+            bar.update(min(b, num_steps) - a)
+            bar.set_postfix(loss=f"{float(jnp.nanmean(chunk_losses)):.4f}")
+    if bar is not None:
+        bar.close()
+    losses = jnp.concatenate(losses, axis=2)[:num_sets, :, :num_steps]
+    return jax.tree.map(lambda v: v[:num_sets], trainable), losses
+
+
+# --- full training runs --------------------------------------------------------------------------
+
+def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callable]], *,
+        directory: str | Path | None = None, run_config: Any = None, log_every: int = 50,
+        end_epoch: Callable[[int, dict, np.ndarray], dict] | None = None, progress: bool = True,
+        stop_after_epochs: int | None = None, check_finite: bool = True) -> dict:
+    """The epoch loop of a training run; returns the final state.
+
+    Args:
+      state: the initial state, a dict with an ``"epoch"`` entry (epochs done); replaced by the
+        last checkpoint of ``directory`` when there is one (resuming).
+      epochs: train until ``state["epoch"]`` reaches this.
+      plan_epoch: ``plan_epoch(epoch) -> (num_steps, run_chunk)``; ``run_chunk(state, a, b)`` runs
+        steps ``a..b-1`` of the epoch (one compiled ``lax.scan``) and returns the new state and
+        the per-step losses ``(b - a,)`` or ``(b - a, K)`` (column 0 the training loss).
+      directory: the run folder: ``config.json`` (``run_config``), orbax checkpoints (one per
+        epoch, the last 3 kept) and ``log.csv``; ``None`` keeps nothing.
+      log_every: steps per chunk (the progress bar moves between chunks).
+      end_epoch: ``end_epoch(epoch, state, losses_TxK) -> row``, the epoch's ``log.csv`` columns
+        after ``epoch`` (e.g. validation losses), called with a directory only; ``fit`` fills
+        ``"seconds"`` (at the row's ``"seconds"`` key if present, else last).
+      stop_after_epochs: end this call after that many epochs (to test resuming).
+      check_finite: raise ``FloatingPointError`` when an epoch's losses are not all finite.
+    """
+    ckpt = Checkpointer(directory, run_config) if directory is not None else None
+    try:
+        if ckpt is not None and ckpt.latest_step() is not None:
+            state = ckpt.restore(state)
+        start = int(state["epoch"])
+        log_path = Path(directory) / "log.csv" if directory is not None else None
+        if log_path is not None:
+            runlog.truncate_log(log_path, start)
+        done = 0
+        for epoch in range(start, epochs):
+            if stop_after_epochs is not None and done >= stop_after_epochs:
+                break
+            t0 = time.perf_counter()
+            num_steps, run_chunk = plan_epoch(epoch)
+            bar = runlog.progress_bar(num_steps, f"epoch {epoch + 1}/{epochs}", progress)
+            parts = []
+            for a in range(0, num_steps, log_every):
+                b = min(a + log_every, num_steps)
+                state, out = run_chunk(state, a, b)
+                parts.append(np.asarray(out))
+                if bar is not None:
+                    bar.update(b - a)
+                    bar.set_postfix(loss=f"{float(np.mean(parts[-1].reshape(b - a, -1)[:, 0])):.4f}")
+            if bar is not None:
+                bar.close()
+            out = np.concatenate(parts)
+            if check_finite and not np.isfinite(out).all():
+                raise FloatingPointError(f"training loss became non-finite in epoch {epoch + 1}")
+            state = {**state, "epoch": jnp.asarray(epoch + 1, jnp.int32)}
+            if ckpt is not None:
+                row = dict(end_epoch(epoch, state, out)) if end_epoch is not None else {}
+                ckpt.save(epoch + 1, state)
+                row = {"epoch": epoch + 1, **row}
+                row["seconds"] = f"{time.perf_counter() - t0:.2f}"
+                runlog.append_log(log_path, row)
+            done += 1
+    finally:
+        if ckpt is not None:
+            ckpt.close()
+    return state

@@ -1,0 +1,163 @@
+"""The shared drivers of jaxstyle.train.scan on a tiny linear problem: the (set, rate) grid equals
+a loop of single runs, frozen values get no update, chunks and masks change nothing, and the
+epoch loop resumes exactly."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from jaxstyle.train import scan
+
+D, N, B, LR = 4, 40, 5, 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class LinearLoss:
+    """``mean((X[idx] @ dropout(w) + b - Y[idx])^2) + lam |w|^2``; ``b`` and the data are frozen."""
+
+    def __call__(self, w, frozen, idx, key, rate, hparams):
+        keep = jax.random.bernoulli(key, 1.0 - rate, w.shape)
+        wd = jnp.where(keep, w / (1.0 - rate), 0.0)
+        pred = frozen["X"][idx] @ wd + frozen["b"]
+        return jnp.mean((pred - frozen["Y"][idx]) ** 2) + hparams["lam"] * jnp.sum(w ** 2)
+
+
+def _problem(seed=0):
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(N, D)).astype(np.float32)
+    Y = (X @ rng.normal(size=D) + 0.5).astype(np.float32)
+    frozen = {"X": jnp.asarray(X), "Y": jnp.asarray(Y), "b": jnp.float32(0.3)}
+    rows = [np.arange(0, 25), np.arange(25, 40)]  # two sets, ragged: 5 and 3 batches per epoch
+    batches, mask = scan.sweep_batches(rows, epochs=3, batch_size=B, seed=seed)
+    rates = (0.1, 0.4)
+    keys = jnp.stack([jnp.stack([jax.random.split(scan.pair_key(seed, s, r), batches.shape[1])
+                                 for r in range(2)]) for s in range(2)])
+    w0 = jnp.asarray(rng.normal(size=(2, 2, D)).astype(np.float32))
+    return frozen, batches, mask, rates, keys, w0, {"lam": jnp.float32(0.01)}
+
+
+def _loop(frozen, idx_T, mask_T, keys_T, rate, w, hparams):
+    """A plain Python loop of optax Adam steps on ``w`` alone (the reference)."""
+    opt = optax.adam(LR)
+    state = opt.init(w)
+    grad = jax.jit(jax.value_and_grad(lambda w, idx, k: LinearLoss()(w, frozen, idx, k, rate, hparams)))
+    losses = []
+    for idx, real, k in zip(idx_T, mask_T, keys_T, strict=True):
+        if not real:
+            losses.append(np.nan)
+            continue
+        value, g = grad(w, jnp.asarray(idx), k)
+        updates, state = opt.update(g, state)
+        w = optax.apply_updates(w, updates)
+        losses.append(float(value))
+    return w, np.array(losses)
+
+
+def test_grid_equals_a_loop_of_single_runs_and_leaves_frozen_alone():
+    frozen, batches, mask, rates, keys, w0, hp = _problem()
+    before = jax.tree.map(np.array, frozen)
+    w, losses = scan.grid_sweep(LinearLoss(), w0, frozen, batches, mask, keys, rates, learning_rate=LR, hparams=hp)
+    assert w.shape == (2, 2, D) and losses.shape == (2, 2, batches.shape[1])
+    for s in range(2):
+        for r in range(2):
+            want_w, want_losses = _loop(frozen, batches[s], mask[s], keys[s, r], jnp.float32(rates[r]), w0[s, r], hp)
+            np.testing.assert_allclose(w[s, r], want_w, rtol=1e-5, atol=1e-5)
+            np.testing.assert_allclose(losses[s, r], want_losses, rtol=1e-5, atol=1e-5)
+            one, _, one_losses = scan.run_pair(LinearLoss(), w0[s, r], optax.adam(LR).init(w0[s, r]), frozen,
+                                               jnp.asarray(batches[s]), jnp.asarray(mask[s]), keys[s, r],
+                                               jnp.float32(rates[r]), hp, learning_rate=LR)
+            np.testing.assert_allclose(w[s, r], one, rtol=1e-5, atol=1e-5)
+            np.testing.assert_allclose(losses[s, r], one_losses, rtol=1e-5, atol=1e-5)
+    # the frozen tree got no update (its values are unchanged and the result is that of training
+    # w alone), though its gradient is not zero: training b as well moves w differently
+    for k in before:
+        np.testing.assert_array_equal(before[k], np.asarray(frozen[k]))
+    assert float(jax.grad(lambda b: LinearLoss()(w0[0, 0], {**frozen, "b": b}, jnp.arange(B), keys[0, 0, 0], 0.1,
+                                                 hp))(frozen["b"])) != 0.0
+    both = scan.run_pair(
+        lambda t, fz, idx, k, r, h: LinearLoss()(t[0], {**fz, "b": t[1]}, idx, k, r, h), (w0[0, 0], frozen["b"]),
+        optax.adam(LR).init((w0[0, 0], frozen["b"])), frozen, jnp.asarray(batches[0]), jnp.asarray(mask[0]),
+        keys[0, 0], jnp.float32(rates[0]), hp, learning_rate=LR)[0]
+    assert np.abs(np.asarray(both[0]) - np.asarray(w[0, 0])).max() > 1e-4
+    # the starting tree passed in is not consumed (the driver trains a copy)
+    assert np.isfinite(np.asarray(w0)).all()
+
+
+def test_masked_steps_change_nothing_and_chunks_give_the_same_result():
+    frozen, batches, mask, rates, keys, w0, hp = _problem(1)
+    w, losses = scan.grid_sweep(LinearLoss(), w0, frozen, batches, mask, keys, rates, learning_rate=LR, hparams=hp)
+    real = int(mask[1].sum())
+    assert real < batches.shape[1] and np.isnan(np.asarray(losses[1, :, real:])).all()
+    assert np.isfinite(np.asarray(losses[1, :, :real])).all()
+    short, _ = scan.grid_sweep(LinearLoss(), w0[1:], frozen, batches[1:, :real], mask[1:, :real],
+                               keys[1:, :, :real], rates, learning_rate=LR, hparams=hp)
+    np.testing.assert_allclose(w[1], short[0], rtol=1e-5, atol=1e-6)
+    chunked, chunked_losses = scan.grid_sweep(LinearLoss(), w0, frozen, batches, mask, keys, rates,
+                                              learning_rate=LR, hparams=hp, chunk_steps=4)
+    np.testing.assert_allclose(chunked, w, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(chunked_losses, losses, rtol=1e-5, atol=1e-6)
+    # the rate is traced: another rate, the same compiled program, another result
+    other, _ = scan.grid_sweep(LinearLoss(), w0, frozen, batches, mask, keys, (0.0, 0.4), learning_rate=LR,
+                               hparams=hp)
+    assert np.abs(np.asarray(other[:, 0] - w[:, 0])).max() > 1e-4
+    np.testing.assert_allclose(other[:, 1], w[:, 1], rtol=1e-6)
+
+
+def _fit(tmp_path, name, **kw):
+    """A toy run: least squares on w, 3 epochs of 4 steps, chunks of 3 steps."""
+    X = jnp.asarray(np.random.default_rng(0).normal(size=(12, 3)).astype(np.float32))
+    Y = X @ jnp.array([1.0, -2.0, 0.5])
+    opt = optax.adam(0.1)
+    loss = lambda w, idx, k: jnp.mean((X[idx] @ w - Y[idx]) ** 2)  # noqa: E731
+    run = jax.jit(lambda w, o, idx, keys: scan.train_scan(loss, w, o, idx, jnp.ones(len(idx), bool), keys,
+                                                          optimizer=opt))
+
+    def plan_epoch(epoch):
+        idx = np.random.default_rng(epoch).permutation(12).reshape(4, 3)
+        keys = jax.random.split(jax.random.PRNGKey(epoch), 4)
+
+        def chunk(state, a, b):
+            w, o, losses = run(state["w"], state["opt_state"], jnp.asarray(idx[a:b]), keys[a:b])
+            return {**state, "w": w, "opt_state": o}, losses
+
+        return 4, chunk
+
+    w = jnp.zeros(3)
+    state = {"w": w, "opt_state": opt.init(w), "epoch": jnp.zeros((), jnp.int32)}
+    return scan.fit(state, 3, plan_epoch, directory=tmp_path / name, run_config={"run": name}, log_every=3,
+                    end_epoch=lambda e, s, out: {"train_loss": f"{out.mean():.6f}", "seconds": None, "w0": "x"},
+                    progress=False, **kw)
+
+
+def test_fit_resumes_exactly_and_logs_every_epoch(tmp_path):
+    straight = _fit(tmp_path, "a")
+    assert int(straight["epoch"]) == 3
+    _fit(tmp_path, "b", stop_after_epochs=1)
+    resumed = _fit(tmp_path, "b")
+    np.testing.assert_allclose(straight["w"], resumed["w"], rtol=1e-6)
+    with open(tmp_path / "b" / "log.csv") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["epoch", "train_loss", "seconds", "w0"] and [r[0] for r in rows[1:]] == ["1", "2", "3"]
+    with pytest.raises(ValueError, match="different config"):
+        scan.fit(straight, 3, None, directory=tmp_path / "a", run_config={"run": "other"})
+
+
+def test_fit_stops_on_a_non_finite_loss():
+    def plan_epoch(epoch):
+        return 2, lambda state, a, b: (state, np.full(b - a, np.nan))
+
+    with pytest.raises(FloatingPointError, match="epoch 1"):
+        scan.fit({"epoch": jnp.zeros((), jnp.int32)}, 2, plan_epoch, progress=False)
+
+
+def test_default_rates_are_the_2018_ones():
+    from jaxstyle.mason2018 import fewshot
+
+    assert scan.DEFAULT_RATES == (0.3, 0.5, 0.7) == fewshot.SweepConfig().rates
