@@ -124,6 +124,12 @@ def test_cp_adapter_blend_equals_the_blend_of_residuals():
                                atol=1e-6)
     with pytest.raises(ValueError, match="rank"):
         pfnn.pad_rank(blended, 3)
+    # stacking a rank-3 style with the rank-9 blend pads the first: each keeps its own residual
+    stacked = pfnn.stack_adapters([single, blended])
+    assert stacked["A"].shape == (2, 9, 8)
+    for k, want_k in enumerate((pfnn.apply_adapter(single, h, w4), pfnn.apply_adapter(blended, h, w4))):
+        np.testing.assert_allclose(pfnn.apply_adapter(jax.tree.map(lambda v, k=k: v[k], stacked), h, w4), want_k,
+                                   rtol=1e-6, atol=1e-6)
 
 
 def test_style_blends_of_every_modulation_are_linear_in_the_output_where_they_should_be():
@@ -200,7 +206,6 @@ def _small_lpn(x, y, backbone="lpn", modulation="film"):
     return config, params, x_norm, y_norm
 
 
-@pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_lpn_batch_equals_single_rollouts_and_decodes(lpn_clip):
     m, feats = lpn_clip
     x, y, p = feats.inputs, feats.outputs, feats.phases
@@ -210,8 +215,10 @@ def test_lpn_batch_equals_single_rollouts_and_decodes(lpn_clip):
                paths.zigzag(0.5, 1.2, units_per_meter=100.0)]
     controls = [controller.signal_controls(s) for s in signals]
     states = [lpn_controller.initial_state(x[i], p[i], num_bones) for i in (0, 50, 100)]
-    styles = jax.random.normal(jax.random.PRNGKey(3), (3, 64)) * 0.3 + jnp.tile(
-        jnp.concatenate([jnp.ones(16), jnp.zeros(16)]), 2)  # gamma near 1, beta near 0
+    # gamma near 0.3, beta near 0: FiLM damps the untrained network, so its closed loop does not
+    # amplify float32 rounding (with gamma near 1 batched and single rollouts part after ~18 frames)
+    styles = jax.random.normal(jax.random.PRNGKey(3), (3, 64)) * 0.1 + jnp.tile(
+        jnp.concatenate([0.3 * jnp.ones(16), jnp.zeros(16)]), 2)
     stack = lambda items: jax.tree.map(lambda *v: jnp.stack(v), *items)  # noqa: E731
     many = lpn_controller.rollout_batch(params, config, styles, x_norm, y_norm, stack(states), stack(controls))
     assert many.positions.shape == (3, 30, num_bones, 3)

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from typing import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -298,6 +298,19 @@ def pad_rank(adapter: dict, rank: int) -> dict:
         raise ValueError(f"cannot pad a rank-{adapter['A'].shape[0]} adapter down to rank {rank}")
     return {"A": jnp.pad(adapter["A"], ((0, extra), (0, 0))), "d": jnp.pad(adapter["d"], ((0, 0), (0, extra))),
             "B": jnp.pad(adapter["B"], ((0, 0), (0, extra))), "b": adapter["b"]}
+
+
+def stack_adapters(adapters: Sequence[dict]) -> dict:
+    """Adapters of one kind stacked on a new leading axis (one per style or character); CP adapters
+    of different ranks are first padded to the largest (:func:`pad_rank`, which changes nothing
+    they compute)."""
+    adapters = list(adapters)
+    if not adapters:
+        raise ValueError("no adapters to stack")
+    if adapter_kind(adapters[0]) == "cp":
+        rank = max(a["A"].shape[0] for a in adapters)
+        adapters = [pad_rank(a, rank) for a in adapters]
+    return jax.tree.map(lambda *v: jnp.stack(v), *adapters)
 
 
 # --- dropout, forward, loss ---------------------------------------------------------------------

@@ -108,10 +108,7 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
     x_norm, y_norm = normalisers
     upm = estimate_units_per_meter(skeleton)
     fps = skeleton.fps
-    adapters = [c.adapter for c in characters]
-    if pfnn.adapter_kind(adapters[0]) == "cp":
-        rank = max(a["A"].shape[0] for a in adapters)
-        adapters = [pfnn.pad_rank(a, rank) for a in adapters]
+    stacked = pfnn.stack_adapters([c.adapter for c in characters])
     starts, speeds = [], []
     for c in characters:
         rows = style_rows(c.dataset, c.style)
@@ -122,7 +119,8 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
         speeds.append(v)
     pairs = [(s, p) for s in range(len(characters)) for p in path_names]
     signals = [paths.named(p, seconds, speeds[s], units_per_meter=upm, fps=fps) for s, p in pairs]
-    args = (params, _stack([adapters[s] for s, _ in pairs]), x_norm, y_norm, _stack([starts[s] for s, _ in pairs]),
+    which = np.asarray([s for s, _ in pairs])
+    args = (params, jax.tree.map(lambda v: v[which], stacked), x_norm, y_norm, _stack([starts[s] for s, _ in pairs]),
             _stack([controller.signal_controls(sig) for sig in signals]))
     jax.block_until_ready(controller.rollout_batch(*args))  # compile
     t0 = time.perf_counter()
@@ -206,11 +204,7 @@ def quality_table(rows: list[dict]) -> list[str]:
 def blend_character(a: Character, b: Character, weights: Sequence[float] = (0.5, 0.5)) -> Character:
     """A character in a blend of two styles' adapters (:func:`jaxstyle.nn.pfnn.blend_adapters`: exact for
     CP adapters, whose ranks add), starting like ``a``."""
-    pair = [a.adapter, b.adapter]
-    if pfnn.adapter_kind(a.adapter) == "cp":
-        rank = max(x["A"].shape[0] for x in pair)
-        pair = [pfnn.pad_rank(x, rank) for x in pair]
-    stacked = jax.tree.map(lambda *v: jnp.stack(v), *pair)
+    stacked = pfnn.stack_adapters([a.adapter, b.adapter])
     w = np.asarray(weights, dtype=np.float64)
     name = " + ".join(f"{100 * wi:.0f}% {c.label}" for wi, c in zip(w, (a, b), strict=True))
     return Character(name, f"blend_{a.label}_{b.label}", pfnn.blend_adapters(stacked, w), a.dataset, a.style)
