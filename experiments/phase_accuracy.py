@@ -40,14 +40,14 @@ def step_offsets(paths: list[Path], **kwargs) -> np.ndarray:
     out = []
     for p in paths:
         motion = js.read_bvh(p)
-        labelled = [int(t) for t in Path(str(p)[:-4] + "_footsteps.txt").read_text().split()]
+        labelled = phase.read_footsteps(str(p)[:-4] + "_footsteps.txt")  # 0-based (the files count from 1)
         if len(labelled) < 2:
             continue
         left, right = phase.footsteps(motion, **kwargs)
         for i, frame in enumerate(labelled):  # footsteps alternate right, left, right, ...
             detected = right if i % 2 == 0 else left
-            if frame < motion.num_frames and len(detected):
-                out.append(detected[np.argmin(np.abs(detected - frame))] - frame)
+            if 0 <= frame < motion.num_frames and len(detected):
+                out.append(int(detected[np.argmin(np.abs(detected - frame))] - frame))
     return np.array(out)
 
 

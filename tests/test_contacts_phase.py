@@ -94,9 +94,27 @@ def test_step_starts_ignore_a_relanding_without_lift():
 
 def test_read_phase_labels(mocap):
     p, labelled = read_phase_labels(mocap / "pfnn_excerpt/NewCaptures01_000.bvh")
-    assert len(p) == 550 and labelled.sum() == 531 - 391 + 1 and labelled[391] and not labelled[390]
+    # footsteps 391 .. 531 in the file count from 1: 0-based frames 390 .. 530 are labelled
+    assert len(p) == 550 and labelled.sum() == 531 - 391 + 1 and labelled[390] and not labelled[389]
+    assert labelled[530] and not labelled[531]
     _, none = read_phase_labels(mocap / "pfnn_excerpt/NewCaptures02_000.bvh")  # a single footstep
     assert not none.any()
+
+
+def test_footstep_files_count_frames_from_one(mocap):
+    """On every shared capture the phase label of a listed step sits one line before the step's
+    number: label 0 (right) or 0.5 (left) exactly at the 0-based frame read_footsteps returns."""
+    files = sorted((mocap / "pfnn_excerpt").glob("*_footsteps.txt"))
+    assert files
+    checked = 0
+    for f in files:
+        ph = np.loadtxt(str(f)[:-len("_footsteps.txt")] + ".phase")
+        steps = phase.read_footsteps(f)
+        inside = steps[(steps >= 0) & (steps < len(ph))]
+        dist = np.minimum(np.abs(ph[inside] - 0.5), np.minimum(ph[inside], 1 - ph[inside]))
+        assert (dist < 1e-3).all(), (f.name, inside[dist >= 1e-3])
+        checked += len(inside)
+    assert checked >= 10  # 20 steps inside the shared excerpts
 
 
 def _errors(mocap, names, **kw):

@@ -167,12 +167,25 @@ def label_errors(bvh_path, **global_phase_kwargs) -> np.ndarray:
     return circular_distance(global_phase(motion, **global_phase_kwargs)[labelled], labels[labelled])
 
 
+def read_footsteps(path: str | os.PathLike) -> np.ndarray:
+    """The hand-labelled footstep frames of a PFNN capture's ``<name>_footsteps.txt``, 0-based.
+
+    The files count frames from 1: the phase label 0 (right) or 0.5 (left) of a listed step ``n``
+    sits on line ``n`` of ``<name>.phase``, i.e. 0-based frame ``n - 1`` (checked on every shared
+    capture by ``tests/test_contacts_phase.py``)."""
+    path = Path(path)
+    try:
+        return np.array([int(tok) for tok in path.read_text().split()], dtype=np.int64) - 1
+    except ValueError as e:
+        raise MotionDataError(f"cannot read footstep labels: {e}", path) from None
+
+
 def read_phase_labels(bvh_path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Hand-cleaned PFNN phase labels of a capture: ``(phase_T, labelled_T)``.
 
     Reads ``<name>.phase`` (one phase in ``[0, 1)`` per frame) and ``<name>_footsteps.txt``
     beside ``<name>.bvh``. A frame is labelled only between the first and last footstep listed
-    (clipped to the clip); outside that range the file holds 0 meaning "unlabelled", and a file
+    (:func:`read_footsteps`, 1-based in the file; clipped to the clip); outside that range the file holds 0 meaning "unlabelled", and a file
     with a single footstep has no labelled frame.
     """
     bvh_path = Path(bvh_path)
@@ -183,9 +196,9 @@ def read_phase_labels(bvh_path: str | os.PathLike) -> tuple[np.ndarray, np.ndarr
             raise FileNotFoundError(f"{p} not found (phase labels of {bvh_path})")
     try:
         phase = np.loadtxt(phase_path, dtype=np.float64, ndmin=1)
-        steps = np.array([int(tok) for tok in steps_path.read_text().split()], dtype=np.int64)
     except ValueError as e:
         raise MotionDataError(f"cannot read phase labels: {e}", phase_path) from None
+    steps = read_footsteps(steps_path)
     if phase.ndim != 1 or not np.isfinite(phase).all() or (phase < 0).any() or (phase >= 1).any():
         raise MotionDataError("phase labels must be one finite value in [0, 1) per line", phase_path)
     labelled = np.zeros(len(phase), dtype=bool)
