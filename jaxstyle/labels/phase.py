@@ -185,7 +185,8 @@ def read_phase_labels(bvh_path: str | os.PathLike) -> tuple[np.ndarray, np.ndarr
 
     Reads ``<name>.phase`` (one phase in ``[0, 1)`` per frame) and ``<name>_footsteps.txt``
     beside ``<name>.bvh``. A frame is labelled only between the first and last footstep listed
-    (:func:`read_footsteps`, 1-based in the file; clipped to the clip); outside that range the file holds 0 meaning "unlabelled", and a file
+    (:func:`read_footsteps`, 1-based in the file; clipped to the clip); outside that range the
+    file holds 0 meaning "unlabelled", and a file
     with a single footstep has no labelled frame.
     """
     bvh_path = Path(bvh_path)
