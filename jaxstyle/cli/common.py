@@ -9,6 +9,7 @@ import importlib
 import json
 import os
 import platform
+import tempfile
 import time
 from pathlib import Path
 from typing import Sequence
@@ -21,6 +22,85 @@ DATA_HELP = ("a style folder: <Style>/<Style>_<GAIT>.bvh files, with 100STYLE's 
 
 class CLIError(Exception):
     """A problem with the user's arguments or files, reported on one line."""
+
+
+# --- paths: one-line descriptions of what is wrong with them -----------------------------------
+
+def one_line(message) -> str:
+    """``message`` on one line (its non-empty lines joined by spaces)."""
+    return " ".join(line.strip() for line in str(message).splitlines() if line.strip())
+
+
+def file_in_the_way(path: str | os.PathLike) -> Path | None:
+    """The nearest ancestor of ``path`` that exists as something other than a folder (a regular
+    file), if any: the reason a folder cannot be created there."""
+    for parent in Path(path).parents:
+        if parent.exists():
+            return None if parent.is_dir() else parent
+    return None
+
+
+def describe_os_error(e: OSError) -> str:
+    """One line for an :class:`OSError`: the path(s) it names and the problem, e.g.
+    ``runs/x/sub: not a directory (runs/x is a file)``."""
+    problem = e.strerror or one_line(e) or type(e).__name__
+    problem = problem[:1].lower() + problem[1:]
+    if e.filename is None:
+        return f"{type(e).__name__}: {problem}"
+    where = os.fsdecode(e.filename) if isinstance(e.filename, (str, bytes, os.PathLike)) else str(e.filename)
+    if e.filename2 is not None:
+        where += f" -> {os.fsdecode(e.filename2)}"
+    if isinstance(e, (NotADirectoryError, FileNotFoundError)):
+        blocker = file_in_the_way(where.split(" -> ")[0])
+        if blocker is not None:
+            problem += f" ({blocker} is a file, not a folder)"
+    return f"{where}: {problem}"
+
+
+def ensure_folder(folder: Path, flag: str, target: Path | None = None) -> Path:
+    """Create ``folder`` (parents too) and check that files can be written in it, else raise a
+    :class:`CLIError` naming ``flag`` and the path: the folder itself (``--run R``) or the file
+    ``target`` to be written in it (``--out R/x.gif``)."""
+    folder = Path(folder)
+    subject = f"{flag} {folder if target is None else target}"
+    it = "" if target is None else f" {folder}"
+    if folder.exists() and not folder.is_dir():
+        raise CLIError(f"{subject}: {'' if target is None else f'{folder} '}is a file, not a folder")
+    blocker = file_in_the_way(folder)
+    if blocker is not None:
+        raise CLIError(f"{subject}: cannot create the folder{it}: {blocker} is a file, not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CLIError(f"{subject}: cannot create the folder{it}: {describe_os_error(e)}") from None
+    try:
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as e:
+        raise CLIError(f"{subject}: cannot write in the folder{it}: {(e.strerror or str(e)).lower()}") from None
+    return folder
+
+
+def check_input_file(path: Path, flag: str = "", what: str = "file") -> None:
+    """Raise a :class:`CLIError` unless ``path`` is an existing file (not a folder)."""
+    subject = f"{flag} {path}" if flag else str(path)
+    if path.is_dir():
+        raise CLIError(f"{subject}: is a folder, not a {what}")
+    if not path.exists():
+        blocker = file_in_the_way(path)
+        raise CLIError(f"{subject}: no such file" + (f" ({blocker} is a file, not a folder)" if blocker else ""))
+    if not path.is_file():
+        raise CLIError(f"{subject}: not a regular file")
+
+
+def check_input_folder(path: Path, flag: str) -> None:
+    """Raise a :class:`CLIError` when ``path`` exists but is not a folder, or cannot exist because a
+    file stands where one of its parents should be (a plainly missing folder is left to the
+    command, whose message says what such a folder must hold or creates it)."""
+    if path.exists() and not path.is_dir():
+        raise CLIError(f"{flag} {path}: is a file, not a folder")
+    blocker = file_in_the_way(path)
+    if blocker is not None:
+        raise CLIError(f"{flag} {path}: {blocker} is a file, not a folder")
 
 
 # --- the run folder -----------------------------------------------------------------------------

@@ -6,7 +6,7 @@ import time
 import warnings
 from pathlib import Path
 
-from jaxstyle.cli.common import DATA_HELP, Run, add_common, check_positive, elapsed, progress
+from jaxstyle.cli.common import DATA_HELP, Run, add_common, check_positive, elapsed, ensure_folder, progress
 
 NAME = "data"
 HELP = "make, download or inspect motion data"
@@ -64,6 +64,7 @@ def generate(args, run: None) -> None:
     from jaxstyle.data import procedural
 
     check_positive(args, "seconds")
+    ensure_folder(args.out, "--out")
     t0 = time.perf_counter()
     root = procedural.write_dataset(args.out, styles=args.styles, gaits=tuple(args.gaits or procedural.GAITS),
                                     seconds=args.seconds, seed=args.seed, progress=progress(args))

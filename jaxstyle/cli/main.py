@@ -14,21 +14,36 @@ Every step that trains or writes results works in a run folder (``--run``, defau
 ``cache/``, with ``config.json`` (the settings of each command run there) and ``log.txt`` (what
 each printed). Settings come from flags or from a TOML file (``--config FILE``; flags win), whose
 keys are the flags' long names (``base-epochs = 10``), at top level or in a table named after the
-command. Bad arguments and missing files end with a one-line error; ``--debug`` shows the
-traceback instead.
+command; each value is checked against its flag (type, number of values, choices). Bad arguments,
+settings and files, and unforeseen failures, end with ONE line on stderr naming the flag, setting
+or path at fault (exit status 1, or 2 for argparse's own errors); ``--debug`` shows the traceback
+instead.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import sys
 import tomllib
 from pathlib import Path
 from typing import Callable, Sequence
 
 from jaxstyle.cli import bench, data, demo, lpn, render, sweep, synthesize, train_base
-from jaxstyle.cli.common import CLIError, Formatter, Parser, Run, resolve_defaults
+from jaxstyle.cli.common import (
+    CLIError,
+    Formatter,
+    Parser,
+    Run,
+    check_input_file,
+    check_input_folder,
+    describe_os_error,
+    ensure_folder,
+    file_in_the_way,
+    one_line,
+    resolve_defaults,
+)
 
 COMMANDS = (demo, data, train_base, sweep, lpn, synthesize, render, bench)
 """The command modules, in the order of ``jaxstyle --help``: each has ``NAME``, ``HELP``, ``DOC``,
@@ -64,31 +79,137 @@ def _command_name(args) -> str:
     return args.command if args.command != "data" else f"data {args.data_command}"
 
 
+def _read_config(path: Path) -> dict:
+    """The settings of a TOML file, or a one-line :class:`CLIError` naming it."""
+    if path.is_dir():
+        raise CLIError(f"--config {path}: is a folder, not a TOML file")
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        blocker = file_in_the_way(path)
+        raise CLIError(f"--config {path}: no such file" + (f" ({blocker} is a file, not a folder)" if blocker
+                                                           else "")) from None
+    except OSError as e:
+        raise CLIError(f"--config {path}: cannot read it: {describe_os_error(e)}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = None
+    if text is None or "\x00" in text:
+        raise CLIError(f"--config {path}: not a text file (expected a TOML file of settings)")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise CLIError(f"--config {path}: not valid TOML ({one_line(e)})") from None
+
+
+def _toml(value) -> str:
+    """``value`` as it would be written in TOML (for messages)."""
+    try:
+        return json.dumps(value)
+    except (TypeError, ValueError):
+        return str(value)
+
+
+_KINDS = {int: ("an integer", "integers"), float: ("a number", "numbers"), Path: ("a path", "paths"),
+          None: ("a string", "strings")}
+
+
+def _convert_one(action: argparse.Action, value, where: str):
+    """One value of a setting converted as argparse converts the flag's words, or a CLIError."""
+    kind = _KINDS.get(action.type, ("a valid value", "valid values"))[0]
+    bad = CLIError(f"{where}: expected {kind}, got {_toml(value)}")
+    if isinstance(value, (bool, dict, list)):
+        raise bad
+    if action.type is int and not isinstance(value, (int, str)):
+        raise bad
+    if action.type is float and not isinstance(value, (int, float, str)):
+        raise bad
+    if (action.type in (None, Path) and not isinstance(value, str)) or value == "":
+        raise bad
+    try:
+        converted = value if action.type is None else action.type(value)
+    except (TypeError, ValueError, argparse.ArgumentTypeError):
+        raise bad from None
+    if action.choices is not None and converted not in action.choices:
+        raise CLIError(f"{where}: invalid choice {_toml(value)} (choose from {', '.join(map(str, action.choices))})")
+    return converted
+
+
+def config_value(action: argparse.Action, value, where: str):
+    """A setting of a ``--config`` file checked against its flag's argparse ``action`` (type,
+    number of values, choices) and converted; ``where`` (``FILE: key``) starts the one-line
+    :class:`CLIError` otherwise. A single value is taken as a one-item list where the flag takes
+    several (``styles = "Neutral"``)."""
+    if isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
+        if not isinstance(value, bool):
+            raise CLIError(f"{where}: expected true or false, got {_toml(value)}")
+        return value
+    nargs = action.nargs
+    if nargs in (None, "?"):
+        return _convert_one(action, value, where)
+    kind = _KINDS.get(action.type, ("a valid value", "valid values"))
+    if not isinstance(value, list):
+        if isinstance(nargs, int) and nargs != 1:
+            raise CLIError(f"{where}: expected a list of {nargs} {kind[1]}, got {_toml(value)}")
+        value = [value]
+    if isinstance(nargs, int) and len(value) != nargs:
+        raise CLIError(f"{where}: expected a list of {nargs} {kind[1]}, got {_toml(value)}")
+    if nargs == "+" and not value:
+        raise CLIError(f"{where}: expected at least one value ({kind[0]} or a list of {kind[1]}), got []")
+    return [_convert_one(action, v, f"{where}[{i}]" if len(value) > 1 else where) for i, v in enumerate(value)]
+
+
+_NOT_SETTINGS = ("help", "config", "version")
+
+
 def _apply_config(parser, subs, args, argv):
     """Re-parse with the TOML file's settings as defaults (explicit flags still win)."""
     name = _command_name(args)
-    try:
-        settings = tomllib.loads(Path(args.config).read_text())
-    except FileNotFoundError:
-        raise CLIError(f"--config {args.config}: no such file") from None
-    except tomllib.TOMLDecodeError as e:
-        raise CLIError(f"--config {args.config}: not valid TOML ({e})") from None
-    table = settings.get(name, settings.get(name.replace(" ", "-"), {}))
-    flat = {k: v for k, v in settings.items() if not isinstance(v, dict)}
-    flat.update(table if isinstance(table, dict) else {})
+    path = Path(args.config)
+    settings = _read_config(path)
+    table_name, table = name, None
+    for key in (name, name.replace(" ", "-")):
+        if isinstance(settings.get(key), dict):
+            table_name, table = key, settings[key]
+            break
+    if table is None and " " in name and isinstance(settings.get(name.split()[0]), dict):
+        outer, inner = name.split()  # [data.generate]
+        if isinstance(settings[outer].get(inner), dict):
+            table_name, table = f"{outer}.{inner}", settings[outer][inner]
+    flat = {k: (k, v) for k, v in settings.items() if not isinstance(v, dict)}
+    flat.update({k: (f"{table_name}.{k}", v) for k, v in (table or {}).items()})
     sub = subs[name]
     dests = {a.dest: a for a in sub._actions}
     values = {}
-    for key, value in flat.items():
+    for key, (where, value) in flat.items():
         dest = key.replace("-", "_")
-        if dest not in dests or dest in ("help", "config"):
-            known = sorted(d.replace("_", "-") for d in dests if d not in ("help", "config", "handler"))
-            raise CLIError(f"--config {args.config}: unknown setting {key!r} for `jaxstyle {name}`; known: "
+        if dest not in dests or dest in _NOT_SETTINGS:
+            known = sorted(d.replace("_", "-") for d in dests if d not in _NOT_SETTINGS + ("handler",))
+            raise CLIError(f"--config {path}: unknown setting {key!r} for `jaxstyle {name}`; known: "
                            f"{', '.join(known)}")
-        action = dests[dest]
-        values[dest] = action.type(value) if action.type is not None and isinstance(value, str) else value
+        values[dest] = config_value(dests[dest], value, f"{path}: {where}")
     sub.set_defaults(**values)
     return parser.parse_args(argv)
+
+
+def _check_paths(args) -> None:
+    """The input files and folders named on the command line, checked before anything runs."""
+    if getattr(args, "data", None) is not None:
+        check_input_folder(Path(args.data), "--data")
+    if getattr(args, "run", None) is not None:
+        check_input_folder(Path(args.run), "--run")  # (created, and checked writable, later)
+    if getattr(args, "dest", None) is not None:
+        check_input_folder(Path(args.dest), "--dest")  # data fetch (creates it)
+    for f in getattr(args, "files", None) or ():  # render's BVH files
+        check_input_file(Path(f), what="BVH file")
+    for f in getattr(args, "clip", None) or ():
+        check_input_file(Path(f), "--clip", what="BVH file")
+    if getattr(args, "mp4", False):
+        from matplotlib import animation
+
+        if not animation.writers.is_available("ffmpeg"):
+            raise CLIError("--mp4: writing MP4 needs ffmpeg, which was not found; leave --mp4 out for GIFs only")
 
 
 KNOWN_ERRORS: tuple[type[BaseException], ...] = (CLIError, FileNotFoundError, NotADirectoryError, PermissionError,
@@ -123,21 +244,37 @@ def main(argv: Sequence[str] | None = None) -> int:
             args = _apply_config(parser, subs, args, argv)
         resolve_defaults(args)
         handler: Callable = args.handler
+        _check_paths(args)
         if name in NEEDS_BASE and not (Path(args.run) / "base" / "base.json").is_file():
             raise CLIError(f"no base model in {Path(args.run) / 'base'}: train one first with "
                            "`jaxstyle train-base --data PATH --run RUN` (or run `jaxstyle demo`)")
         if "run" in vars(args):
-            run = Run(args.run, name, vars(args), argv)
+            ensure_folder(Path(args.run), "--run")
+            try:
+                run = Run(args.run, name, vars(args), argv)
+            except OSError as e:
+                raise CLIError(f"--run {args.run}: {describe_os_error(e)}") from None
         handler(args, run)
+    except OSError as e:  # a file or folder the command could not read or write
+        if args.debug:
+            raise
+        print(f"jaxstyle {name}: error: {describe_os_error(e)}", file=sys.stderr)
+        return 1
     except errors as e:
         if args.debug:
             raise
         message = e.args[0] if isinstance(e, KeyError) and e.args else e
-        print(f"jaxstyle {name}: error: {message}", file=sys.stderr)
+        print(f"jaxstyle {name}: error: {one_line(message) or type(e).__name__}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"jaxstyle {name}: interrupted (re-run the same command to resume)", file=sys.stderr)
         return 130
+    except Exception as e:  # a bug, or a failure nothing above foresaw: still one line
+        if args.debug:
+            raise
+        print(f"jaxstyle {name}: internal error: {type(e).__name__}: {one_line(e)} (run with --debug for the "
+              "traceback)", file=sys.stderr)
+        return 1
     finally:
         if run is not None:
             run.close()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from jaxstyle.cli.common import CLIError, add_common, check_positive, progress
+from jaxstyle.cli.common import CLIError, add_common, check_input_file, check_positive, ensure_folder, progress
 
 NAME = "render"
 HELP = "render BVH files side by side to a GIF (or MP4)"
@@ -31,10 +31,17 @@ def run(args, run: None) -> None:
         raise CLIError(f"--start must be >= 0, got {args.start:g}")
     if args.out.suffix.lower() not in (".gif", ".mp4"):
         raise CLIError(f"--out {args.out}: the name must end in .gif or .mp4")
+    if args.out.is_dir():
+        raise CLIError(f"--out {args.out}: is a folder; give a file name ending in .gif or .mp4")
+    ensure_folder(args.out.parent, "--out", args.out)  # before the (slow) reading and drawing
+    if args.out.suffix.lower() == ".mp4":
+        from matplotlib import animation
+
+        if not animation.writers.is_available("ffmpeg"):
+            raise CLIError(f"--out {args.out}: writing MP4 needs ffmpeg, which was not found; name a .gif instead")
     chars, parents, fps, upm = [], None, None, None
     for f in args.files:
-        if not f.is_file():
-            raise CLIError(f"{f}: no such file")
+        check_input_file(f, what="BVH file")
         m = read_bvh(f)
         a = int(round(args.start * m.fps))
         if a >= m.num_frames:
@@ -45,7 +52,6 @@ def run(args, run: None) -> None:
         elif len(m.parents) != len(parents) or m.fps != fps:
             raise CLIError(f"{f}: a different skeleton or frame rate from {args.files[0]}; render them separately")
         chars.append(global_positions(m))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     write = preview.render_gif if args.out.suffix.lower() == ".gif" else preview.render_mp4
     out = write(args.out, chars, parents, fps, titles=[f.stem for f in args.files], units_per_meter=upm,
                 every=args.every, progress=progress(args))
