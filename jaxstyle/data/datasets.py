@@ -19,6 +19,12 @@ mirror share them), with normalisation statistics over the training rows of all 
 are cached under ``cache_dir`` in a file
 named by a hash of the input files' contents, the specs and the settings: a changed file or
 setting builds anew, an unchanged one loads in well under a second.
+
+Guards (see ``docs/bad_input.md``): every clip of a dataset must have the first clip's skeleton
+(same joints, same order), every feature row must be finite and below :data:`FEATURE_LIMIT`
+(the error names the file and the frame), a clip too short for the trajectory window is an error
+or, with ``skip_short``, a warning naming it, its length and the minimum, and a style left with no
+clip is an error. A cache file holding non-finite values is not used.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ import csv
 import dataclasses
 import hashlib
 import json
+import logging
 import os
 import re
 import warnings
@@ -38,7 +45,7 @@ import numpy as np
 from jaxstyle.data.batching import SPLITS, contiguous_split
 from jaxstyle.data.lpn_features import LPNLayout, encode_lpn
 from jaxstyle.data.normalise import Normaliser, fit_normaliser
-from jaxstyle.data.pfnn_features import PFNNLayout, encode_pfnn, valid_frames
+from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PAST_SAMPLES, PFNNLayout, encode_pfnn, sample_step, valid_frames
 from jaxstyle.errors import MotionDataError
 from jaxstyle.labels.phase import global_phase, read_phase_labels
 from jaxstyle.motion import Motion, transform
@@ -46,6 +53,13 @@ from jaxstyle.motion.bvh import read_bvh
 
 CACHE_VERSION = 3
 GAITS_100STYLE = ("BR", "BW", "FR", "FW", "ID", "SR", "SW", "TR1", "TR2", "TR3")
+FEATURE_LIMIT = 1e6
+"""The largest magnitude a feature value may have. Features are positions (in the file's units,
+centimetres for 100STYLE: at most a few thousand over the 11 s trajectory window), velocities,
+rotations and phases; a value beyond this comes from an absurd input value (a root at 1e300
+passes as a finite number and overflows float32) and is refused."""
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -247,9 +261,28 @@ def _load(spec: ClipSpec, fps: float | None) -> tuple[Motion, float]:
         raise MotionDataError(f"frame range [{spec.start}, {spec.stop}) is empty for a clip of "
                               f"{motion.num_frames} frames", spec.path)
     motion = motion.frames(spec.start, stop)
+    _check_motion(spec, motion)
     if fps is not None and motion.fps != fps:
         motion = transform.resample(motion, fps)
     return (transform.mirror(motion) if spec.mirror else motion), source_fps
+
+
+def _check_motion(spec: ClipSpec, motion: Motion) -> None:
+    """Refuse a clip whose joint positions or rotations are not finite or beyond
+    :data:`FEATURE_LIMIT` (a root at 1e300 is a finite number the reader accepts), naming the
+    file and the first such frame."""
+    for name, arr in (("joint positions", motion.local_positions), ("joint rotations", motion.rotations)):
+        flat = np.asarray(arr).reshape(len(arr), -1)
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(flat) & (np.abs(flat) <= FEATURE_LIMIT)
+        bad = ~ok.all(axis=1)
+        if bad.any():
+            f = int(np.argmax(bad))
+            joint = int(np.argmax(~ok[f])) // (flat.shape[1] // len(motion.names))
+            value = flat[f][~ok[f]][0]
+            what = "not finite" if not np.isfinite(value) else f"beyond {FEATURE_LIMIT:g}"
+            raise MotionDataError(f"frame {spec.start + f} (0-based) has {name} of {motion.names[joint]!r} {what}"
+                                  f" ({value:g}; {int(bad.sum())} such frames); fix or cut those frames", spec.path)
 
 
 def load_clip(spec: ClipSpec, fps: float | None = None) -> Motion:
@@ -260,7 +293,7 @@ def load_clip(spec: ClipSpec, fps: float | None = None) -> Motion:
 def _cache_key(kind: str, specs: Sequence[ClipSpec], settings: dict) -> str:
     h = hashlib.sha256()
     h.update(json.dumps({"kind": kind, "version": CACHE_VERSION, "settings": settings,
-                         "specs": [dataclasses.asdict(s) for s in specs]}, sort_keys=True).encode())
+                         "specs": [dataclasses.asdict(s) for s in specs]}, sort_keys=True, allow_nan=False).encode())
     for path in sorted({s.path for s in specs} | {str(Path(s.path).with_suffix(".phase")) for s in specs
                                                   if s.phase_labels}):
         h.update(path.encode())
@@ -276,11 +309,15 @@ def _cached(kind: str, specs: Sequence[ClipSpec], settings: dict, cache_dir, bui
         with np.load(path) as data:
             meta = json.loads(str(data["meta"]))
             arrays = {k: data[k] for k in data.files if k != "meta"}
-        return Dataset(styles=tuple(meta["styles"]), specs=tuple(ClipSpec(**s) for s in meta["specs"]), **arrays)
+        if all(np.isfinite(v).all() for v in arrays.values() if np.issubdtype(v.dtype, np.inexact)):
+            return Dataset(styles=tuple(meta["styles"]), specs=tuple(ClipSpec(**s) for s in meta["specs"]),
+                           **arrays)
+        log.warning("%s holds NaN or infinity (cached by an older jaxstyle); building it again", path)
     dataset = build()
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    meta = json.dumps({"styles": dataset.styles, "specs": [dataclasses.asdict(s) for s in dataset.specs]})
+    meta = json.dumps({"styles": dataset.styles, "specs": [dataclasses.asdict(s) for s in dataset.specs]},
+                      allow_nan=False)
     arrays = {f.name: getattr(dataset, f.name) for f in dataclasses.fields(dataset)
               if f.name not in ("styles", "specs")}
     with open(tmp, "wb") as f:
@@ -356,29 +393,101 @@ def _progress(items, desc: str, progress: bool):
     return tqdm(items, desc=desc, unit="clip")
 
 
+def min_frames(fps: float) -> int:
+    """The fewest frames a clip at ``fps`` needs to cover the trajectory window (6 s before a
+    frame, 5 s after it): shorter clips give no training row."""
+    return PAST_SAMPLES * sample_step(fps) + (FUTURE_SAMPLES - 1) * sample_step(fps) + 2
+
+
 def _long_enough(motion: Motion, spec: ClipSpec, skip_short: bool) -> bool:
     """Whether a loaded clip covers the trajectory window; if not, a warning (``skip_short``) or
-    an error naming the file."""
+    an error naming the file, its length and the minimum."""
     if len(valid_frames(motion.num_frames, motion.fps)) > 0:
         return True
+    what = (f"clip of style {spec.style!r} has {motion.num_frames} frames at {motion.fps:g} fps, shorter than "
+            f"the trajectory window (at least {min_frames(motion.fps)} frames, "
+            f"{min_frames(motion.fps) / motion.fps:.1f} s)")
     if skip_short:
-        warnings.warn(f"{spec.path}: {motion.num_frames} frames, shorter than the trajectory window; skipped",
-                      stacklevel=4)
+        message = f"{spec.path}: {what}; skipped"
+        warnings.warn(message, stacklevel=4)
+        log.warning(message)  # seen even where the caller silences warnings (the pipelines do)
         return False
-    raise MotionDataError(f"clip has {motion.num_frames} frames at {motion.fps:g} fps, shorter than the "
-                          "trajectory window (pass skip_short=True to leave such clips out)", spec.path)
+    raise MotionDataError(f"{what} (pass skip_short=True to leave such clips out)", spec.path)
+
+
+def _skeleton(motion: Motion) -> tuple[str, ...]:
+    return tuple(motion.names)
+
+
+def _check_skeleton(first: tuple[ClipSpec, tuple[str, ...]], spec: ClipSpec, names: tuple[str, ...]) -> None:
+    """Refuse a clip whose skeleton differs from the first clip's (naming both files)."""
+    first_spec, first_names = first
+    if names == first_names:
+        return
+    if len(names) != len(first_names):
+        detail = f"{len(names)} joints, but {first_spec.path} has {len(first_names)}"
+    else:
+        i = next(i for i, (a, b) in enumerate(zip(names, first_names, strict=True)) if a != b)
+        detail = (f"{len(names)} joints like {first_spec.path}, but joint {i} is {names[i]!r} there "
+                  f"{first_names[i]!r}")
+    raise MotionDataError(f"skeleton of style {spec.style!r} has {detail} (style {first_spec.style!r}); a dataset "
+                          "needs one skeleton: keep each skeleton's clips in its own data folder", spec.path)
+
+
+def _check_rows(spec: ClipSpec, motion_fps: float, source_fps: float, arrays, frames_of) -> None:
+    """Refuse non-finite or absurd (beyond :data:`FEATURE_LIMIT`) feature values, naming the file
+    and the first bad frame (of the file: the clip's start added, at the file's rate)."""
+    for name, arr in arrays:
+        arr = np.asarray(arr)
+        if arr.size == 0:
+            continue
+        flat = arr.reshape(len(arr), -1)
+        with np.errstate(invalid="ignore"):
+            bad_rows = ~(np.isfinite(flat) & (np.abs(flat) <= FEATURE_LIMIT)).all(axis=1)
+        if not bad_rows.any():
+            continue
+        r = int(np.argmax(bad_rows))
+        frame = int(frames_of(name, r))
+        file_frame = spec.start + int(round(frame * source_fps / motion_fps))
+        values = flat[r][~(np.isfinite(flat[r]) & (np.abs(flat[r]) <= FEATURE_LIMIT))]
+        raise MotionDataError(
+            f"the row of frame {file_frame} (style {spec.style!r}{', mirrored' if spec.mirror else ''}) gives {name} "
+            f"{'that are not finite' if not np.isfinite(values).all() else 'beyond ' + format(FEATURE_LIMIT, 'g')} "
+            f"(e.g. {values[0]:g}; {int(bad_rows.sum())} of {len(flat)} rows): the file holds an absurd or "
+            "non-finite value near that frame", spec.path)
 
 
 def _encode_all(specs, fps, skip_short, progress, desc, encode):
-    """``(kept specs, per-clip arrays)``: each clip read once, short ones skipped or refused."""
-    kept, per_clip = [], []
+    """``(kept specs, per-clip arrays)``: each clip read once, short ones skipped or refused, one
+    skeleton, finite rows; a style left with no clip is an error."""
+    kept, per_clip, first, short = [], [], None, {}
     for spec in _progress(specs, desc, progress):
         motion, source_fps = _load(spec, fps)
-        if _long_enough(motion, spec, skip_short):
-            kept.append(spec)
-            per_clip.append(encode(spec, motion, source_fps))
-    if not kept:
-        raise ValueError("every clip is shorter than the trajectory window")
+        names = _skeleton(motion)
+        if first is None:
+            first = (spec, names)
+        else:
+            _check_skeleton(first, spec, names)
+        if not _long_enough(motion, spec, skip_short):
+            short.setdefault(spec.style, []).append(f"{spec.path} ({motion.num_frames} frames, needs "
+                                                    f"{min_frames(motion.fps)})")
+            continue
+        arrays = encode(spec, motion, source_fps)
+        x, y, p, t, c, c_start = arrays
+
+        def frames_of(name, r, t=t, c_start=c_start):
+            return c_start[r] if name == "style clips" else t[r]
+
+        _check_rows(spec, motion.fps, source_fps,
+                    (("inputs", x), ("outputs", y), ("phases", p), ("style clips", c if c is not None else [])),
+                    frames_of)
+        kept.append(spec)
+        per_clip.append(arrays)
+    lost = [style for style in dict.fromkeys(s.style for s in specs) if style not in {s.style for s in kept}]
+    if lost:
+        listing = "; ".join(f"style {style!r}: {', '.join(dict.fromkeys(short.get(style, [])))}" for style in lost)
+        raise MotionDataError(f"{len(lost)} style(s) have no clip long enough for the trajectory window: {listing}; "
+                              "give them longer clips or leave them out")
     return kept, per_clip
 
 

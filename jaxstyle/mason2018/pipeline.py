@@ -58,6 +58,7 @@ from jaxstyle.motion.bvh import frame_rate
 from jaxstyle.nn import pfnn
 from jaxstyle.output import synthesis
 from jaxstyle.output.synthesis import Character, SynthesisResult
+from jaxstyle.train.checkpoint import json_text
 from jaxstyle.train.scan import DEFAULT_RATES
 
 # --- data ---------------------------------------------------------------------------------------
@@ -207,7 +208,7 @@ def train_base(settings: BaseSettings, directory: str | os.PathLike, *, cache: s
     config = TrainConfig(model=model, epochs=settings.epochs, half_mirrored=True, seed=settings.seed)
     directory.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(settings.to_json(), indent=2))
+    tmp.write_text(json_text(settings.to_json()))
     os.replace(tmp, path)
     x_norm, y_norm = dataset.normalisers()
     x_norm.save(directory / "input_norm.npz")
@@ -263,7 +264,7 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
     meta = {"specs": [dataclasses.asdict(s) for s in specs], "rates": list(config.rates), "epochs": epochs,
             "styles": list(result.styles), "seconds": result.seconds}
     path = Path(directory) / "sweep.json"
-    path.with_name("sweep.json.tmp").write_text(json.dumps(meta, indent=2))
+    path.with_name("sweep.json.tmp").write_text(json_text(meta))
     os.replace(path.with_name("sweep.json.tmp"), path)
     paths["sweep"] = path
     return result, paths, shots

@@ -58,7 +58,7 @@ from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
 from jaxstyle.train import scan
-from jaxstyle.train.checkpoint import Checkpointer
+from jaxstyle.train.checkpoint import Checkpointer, json_text
 
 # --- 1. hold-out -----------------------------------------------------------------------------------
 
@@ -344,7 +344,7 @@ def write_report(result: SweepResult, directory: str | os.PathLike, config: fews
     chosen = {style: {"rate": result.rates[int(result.chosen[s])], "validation_loss": float(result.validation_loss[
         s, result.chosen[s]]), "passed_check": bool(result.chosen_passed[s])} for s, style in enumerate(result.styles)}
     tmp = paths["chosen"].with_name("chosen_rates.json.tmp")
-    tmp.write_text(json.dumps(chosen, indent=2))
+    tmp.write_text(json_text(chosen))  # strict JSON: a NaN loss is null
     os.replace(tmp, paths["chosen"])
     for s, style in enumerate(result.styles):
         # written beside, then renamed over any earlier report's adapter

@@ -21,7 +21,6 @@ folder in the 100STYLE layout (:mod:`jaxstyle.data.folders`):
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 import warnings
@@ -38,6 +37,7 @@ from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import viz
+from jaxstyle.train.checkpoint import json_text
 from jaxstyle.train.defaults import FILM_DEFAULT_RATES
 
 PAPER_NEW_STYLES = ("Elated", "Rushed")
@@ -247,7 +247,7 @@ def write_finetune(result: FinetuneResult, directory: str | os.PathLike) -> dict
         chosen[style] = {"rate": result.rates[c], "rate_index": c,
                          **{f"{split}_{k}": _number(result.after[split][k][s, c]) for split in SPLITS
                             for k in ("mse", "bll")}}
-    paths["chosen"].write_text(json.dumps(chosen, indent=2))
+    paths["chosen"].write_text(json_text(chosen))
     return paths
 
 

@@ -4,6 +4,15 @@
 a different config, so two runs never mix) and keeps the last ``max_to_keep`` steps. Orbax
 writes each step to a temporary folder and renames it when complete, so an interrupted save
 leaves the previous checkpoint intact and :meth:`restore` resumes from the last complete one.
+
+Guards (see ``docs/bad_input.md``):
+
+* :meth:`Checkpointer.save` refuses a tree with a NaN or infinite value
+  (:class:`NonFiniteError`): a checkpoint never holds NaN weights.
+* :meth:`Checkpointer.restore` (latest step) checks each step, newest first, and falls back to the
+  newest good one with a warning ``checkpoint step N in PATH is damaged (...); using step M`` (a
+  truncated data file, an emptied ``_METADATA``, an empty step folder, NaN values); when no step
+  is good it raises one :class:`CheckpointError` naming the folder.
 """
 
 from __future__ import annotations
@@ -11,11 +20,25 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
+import time
+import warnings
 from pathlib import Path
 from typing import Any
 
 import jax
+import numpy as np
 import orbax.checkpoint as ocp
+
+from jaxstyle.errors import JaxstyleError
+
+
+class CheckpointError(JaxstyleError):
+    """A checkpoint folder with no usable step (every step damaged), or a damaged step asked for."""
+
+
+class NonFiniteError(JaxstyleError, FloatingPointError):
+    """Training produced NaN or infinity (a loss or a parameter); nothing is saved."""
 
 
 def _jsonable(config: Any) -> Any:
@@ -30,9 +53,51 @@ def _jsonable(config: Any) -> Any:
     return config
 
 
+def finite_or_none(value: Any) -> Any:
+    """``value`` with every NaN or infinite float (Python or NumPy, in dicts, lists and tuples)
+    replaced by ``None`` and NumPy scalars turned into Python numbers, for strict JSON."""
+    if isinstance(value, dict):
+        return {k: finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_or_none(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return finite_or_none(value.tolist())
+    if isinstance(value, (np.bool_, np.integer)):
+        return value.item()
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    return value
+
+
+def json_text(value: Any, **kwargs) -> str:
+    """Strict JSON of ``value`` (``allow_nan=False``): a NaN or infinity, where a value may
+    legitimately be missing (a loss of a style without validation rows), is written ``null``;
+    every JSON file jaxstyle writes goes through this, so none holds a bare ``NaN``."""
+    kwargs.setdefault("indent", 2)
+    return json.dumps(finite_or_none(_jsonable(value)), allow_nan=False, **kwargs)
+
+
+def non_finite_leaves(tree: Any) -> list[str]:
+    """The key paths (``params/w``...) of the floating-point leaves of ``tree`` holding a NaN or
+    an infinity."""
+    bad = []
+    for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]:
+        value = np.asarray(leaf)
+        if np.issubdtype(value.dtype, np.inexact) and not np.isfinite(value).all():
+            bad.append(jax.tree_util.keystr(path, simple=True, separator="/") or "(root)")
+    return bad
+
+
+def _reason(error: BaseException) -> str:
+    """One line of an orbax / tensorstore error (their messages run to many lines)."""
+    text = " ".join(str(error).split())
+    text = f"{type(error).__name__}: {text}" if text else type(error).__name__
+    return text if len(text) <= 200 else text[:197] + "..."
+
+
 class Checkpointer:
     """Save and restore pytrees under ``directory``; ``config`` (a dataclass or dict) goes to
-    ``directory/config.json``."""
+    ``directory/config.json``. ``restored_step`` is the step the last :meth:`restore` used."""
 
     def __init__(self, directory: str | os.PathLike, config: Any, max_to_keep: int = 3):
         self.directory = Path(directory).absolute()
@@ -40,30 +105,101 @@ class Checkpointer:
         config_json = _jsonable(config)
         path = self.directory / "config.json"
         if path.is_file():
-            saved = json.loads(path.read_text())
-            if saved != json.loads(json.dumps(config_json)):
+            try:
+                saved = json.loads(path.read_text())
+            except json.JSONDecodeError as e:
+                raise CheckpointError(f"{path} is not valid JSON ({e}); restore it or use a new directory") from None
+            if saved != json.loads(json_text(config_json)):
                 raise ValueError(f"{path} holds a different config; use a new directory for a new run")
         else:
             tmp = path.with_name("config.json.tmp")
-            tmp.write_text(json.dumps(config_json, indent=2, sort_keys=True))
+            tmp.write_text(json_text(config_json, sort_keys=True))
             os.replace(tmp, path)
-        self._manager = ocp.CheckpointManager(self.directory / "steps",
-                                              options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep))
+        self.steps_dir = self.directory / "steps"
+        self._max_to_keep = max_to_keep
+        self._manager = self._open()
+        self.restored_step: int | None = None
+
+    def _open(self):
+        return ocp.CheckpointManager(self.steps_dir,
+                                     options=ocp.CheckpointManagerOptions(max_to_keep=self._max_to_keep))
 
     def latest_step(self) -> int | None:
         return self._manager.latest_step()
 
+    def all_steps(self) -> list[int]:
+        return sorted(self._manager.all_steps())
+
     def save(self, step: int, state: Any) -> None:
+        """Save ``state`` as ``step``; a tree with NaN or infinity is refused (:class:`NonFiniteError`)."""
+        bad = non_finite_leaves(state)
+        if bad:
+            raise NonFiniteError(f"refusing to save checkpoint step {step} in {self.steps_dir}: "
+                                 f"{', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''} hold NaN or infinity")
         self._manager.save(step, args=ocp.args.StandardSave(state))
         self._manager.wait_until_finished()
 
-    def restore(self, like: Any, step: int | None = None) -> Any:
-        """The state saved at ``step`` (default: the latest), with the structure of ``like``."""
-        step = self.latest_step() if step is None else step
-        if step is None:
-            raise FileNotFoundError(f"no checkpoint in {self.directory}")
+    def _restore_step(self, like: Any, step: int) -> Any:
+        """Step ``step`` restored and checked, or a :class:`CheckpointError` saying what is wrong."""
+        folder = self.steps_dir / str(step)
+        if folder.is_dir() and not any(folder.iterdir()):
+            raise CheckpointError("the step folder is empty")
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, like)
-        return self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
+        try:
+            state = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
+        except Exception as e:  # orbax/tensorstore raise many types for damaged files
+            raise CheckpointError(_reason(e)) from e
+        bad = non_finite_leaves(state)
+        if bad:
+            raise CheckpointError(f"{', '.join(bad[:5])} hold NaN or infinity")
+        return state
+
+    def restore(self, like: Any, step: int | None = None) -> Any:
+        """The state saved at ``step`` (default: the newest good step), with the structure of ``like``.
+
+        Without ``step`` each saved step is tried, newest first; a damaged one (unreadable files,
+        NaN values) gives a warning naming it and the step used instead. When no step is good,
+        one :class:`CheckpointError` names the folder."""
+        if step is not None:
+            try:
+                state = self._restore_step(like, step)
+            except CheckpointError as e:
+                raise CheckpointError(f"checkpoint step {step} in {self.steps_dir} is damaged ({e})") from e
+            self.restored_step = step
+            return state
+        steps = self.all_steps()
+        if not steps:
+            raise FileNotFoundError(f"no checkpoint in {self.directory}")
+        damaged = []
+        for candidate in reversed(steps):
+            try:
+                state = self._restore_step(like, candidate)
+            except CheckpointError as e:
+                damaged.append((candidate, str(e)))
+                continue
+            for bad_step, reason in damaged:
+                warnings.warn(f"checkpoint step {bad_step} in {self.steps_dir} is damaged ({reason}); "
+                              f"using step {candidate}", stacklevel=2)
+            self.restored_step = candidate
+            return state
+        listing = "; ".join(f"step {s}: {r}" for s, r in damaged)
+        raise CheckpointError(f"no usable checkpoint in {self.steps_dir}: every step is damaged ({listing}); "
+                              "delete that folder to train from the start")
+
+    def set_aside_after(self, step: int) -> list[Path]:
+        """Move the step folders after ``step`` (damaged ones a resumed run will write again) to
+        ``directory/damaged/``; returns their new paths."""
+        moved = []
+        for s in self.all_steps():
+            if s > step:
+                target = self.directory / "damaged" / f"{s}-{time.strftime('%Y%m%d-%H%M%S')}"
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.move(str(self.steps_dir / str(s)), str(target))
+                moved.append(target)
+        if moved:
+            self._manager.close()
+            self._manager = self._open()
+        return moved
 
     def close(self) -> None:
         self._manager.close()

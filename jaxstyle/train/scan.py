@@ -35,7 +35,7 @@ import numpy as np
 import optax
 
 from jaxstyle.train import runlog
-from jaxstyle.train.checkpoint import Checkpointer
+from jaxstyle.train.checkpoint import Checkpointer, NonFiniteError, non_finite_leaves
 from jaxstyle.train.defaults import DEFAULT_RATES  # noqa: F401  (re-exported)
 
 
@@ -236,10 +236,30 @@ def grid_sweep(loss_fn, trainable_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT,
 
 # --- full training runs --------------------------------------------------------------------------
 
+def _check_finite(epoch: int, losses: np.ndarray, state: dict, ckpt: Checkpointer | None) -> None:
+    """Raise :class:`NonFiniteError` naming the epoch (1-based) when its losses or the state are
+    not all finite; nothing of that epoch has been saved."""
+    if np.isfinite(losses).all():
+        bad = non_finite_leaves(state)
+        if not bad:
+            return
+        what = f"the state's {', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''} hold NaN or infinity"
+    else:
+        what = f"the training loss became non-finite ({int(np.sum(~np.isfinite(losses)))} values)"
+    kept = ""
+    if ckpt is not None:
+        last = ckpt.latest_step()
+        kept = f"; the last checkpoint kept is step {last} in {ckpt.steps_dir}" if last is not None else \
+            "; no checkpoint was saved"
+    raise NonFiniteError(f"epoch {epoch + 1}: {what}; not saving it{kept}. Check the data for absurd values "
+                         "(jaxstyle data prepare) or lower the learning rate")
+
+
 def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callable]], *,
         directory: str | Path | None = None, run_config: Any = None, log_every: int = 50,
         end_epoch: Callable[[int, dict, np.ndarray], dict] | None = None, progress: bool = True,
-        stop_after_epochs: int | None = None, check_finite: bool = True) -> dict:
+        stop_after_epochs: int | None = None, check_finite: bool = True,
+        say: Callable[[str], None] | None = print) -> dict:
     """The epoch loop of a training run; returns the final state.
 
     Args:
@@ -256,12 +276,21 @@ def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callabl
         after ``epoch`` (e.g. validation losses), called with a directory only; ``fit`` fills
         ``"seconds"`` (at the row's ``"seconds"`` key if present, else last).
       stop_after_epochs: end this call after that many epochs (to test resuming).
-      check_finite: raise ``FloatingPointError`` when an epoch's losses are not all finite.
+      check_finite: raise :class:`~jaxstyle.train.checkpoint.NonFiniteError` (a
+        ``FloatingPointError``) naming the epoch when an epoch's losses or the state's parameters
+        are not all finite, before anything of that epoch is saved (the checkpointer refuses a
+        non-finite tree in any case).
+      say: where the line ``resumed from step N in DIR`` goes when a checkpoint is resumed
+        (default ``print``; ``None`` for silence). A damaged newest step is a warning naming it and
+        the step used instead; it is moved to ``DIR/damaged/`` so the resumed run can write it again.
     """
     ckpt = Checkpointer(directory, run_config) if directory is not None else None
     try:
         if ckpt is not None and ckpt.latest_step() is not None:
             state = ckpt.restore(state)
+            ckpt.set_aside_after(ckpt.restored_step)
+            if say is not None:
+                say(f"resumed from step {ckpt.restored_step} in {ckpt.steps_dir} (epoch {int(state['epoch'])} done)")
         start = int(state["epoch"])
         log_path = Path(directory) / "log.csv" if directory is not None else None
         if log_path is not None:
@@ -284,8 +313,8 @@ def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callabl
             if bar is not None:
                 bar.close()
             out = np.concatenate(parts)
-            if check_finite and not np.isfinite(out).all():
-                raise FloatingPointError(f"training loss became non-finite in epoch {epoch + 1}")
+            if check_finite:
+                _check_finite(epoch, out, state, ckpt)
             state = {**state, "epoch": jnp.asarray(epoch + 1, jnp.int32)}
             if ckpt is not None:
                 row = dict(end_epoch(epoch, state, out)) if end_epoch is not None else {}
