@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import json
-
 from jaxstyle.cli.common import SWEEP_RATES, Run, add_common, check_positive, machine
 
 NAME = "bench"
@@ -49,5 +47,7 @@ def run(args, run: Run) -> None:
     for size, (mean, std) in b.forward_ms.items():
         run.say(f"PFNN forward, batch {size}: {mean:.3f} +- {std:.3f} ms ({size / mean * 1e3:,.0f} frames/s)")
     figures = {**b.seconds, **{f"forward_batch_{size}_ms": ms[0] for size, ms in b.forward_ms.items()}}
-    (run.dir / "bench.json").write_text(json.dumps({"machine": machine(), **figures}, indent=2))
+    from jaxstyle.train.checkpoint import json_text
+
+    (run.dir / "bench.json").write_text(json_text({"machine": machine(), **figures}))
     run.say(f"written: {run.dir / 'bench.json'}")

@@ -141,7 +141,9 @@ class Run:
                 config = json.loads(config_path.read_text())
         config[self.command] = _jsonable({k: v for k, v in settings.items() if k not in _UNSAVED})
         tmp = config_path.with_name("config.json.tmp")
-        tmp.write_text(json.dumps(config, indent=2))
+        from jaxstyle.train.checkpoint import json_text  # strict JSON (NaN -> null); loads JAX, so here
+
+        tmp.write_text(json_text(config))
         os.replace(tmp, config_path)
 
     def say(self, text: str = "") -> None:

@@ -626,7 +626,7 @@ def write_dataset(root: str | os.PathLike, styles: Sequence[str] | None = None, 
                 "seed": seed, "styles": styles, "gaits": gaits, "clips": clips,
                 "contacts_format": "<stem>_contacts.txt: one line per frame, 'left right', 1 = planted",
                 "style_params": {s: dataclasses.asdict(STYLES[s]) for s in styles}}
-    _write_text(root / "procedural.json", json.dumps(settings, indent=2) + "\n")
+    _write_text(root / "procedural.json", json.dumps(settings, indent=2, allow_nan=False) + "\n")
     return root
 
 
