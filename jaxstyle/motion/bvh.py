@@ -9,10 +9,23 @@ spaces, and braces on their own lines or not. Rotations become quaternions (see
 The motion block is parsed by pandas' C tokenizer (about 2.5x faster than ``np.loadtxt`` on the
 same text); when that fast path finds anything unusual, a line-by-line pass locates the problem,
 so every error names the file and line.
+
+What the reader accepts and refuses (see also ``docs/bad_input.md``):
+
+* a UTF-8 byte order mark at the start is skipped; CRLF (and lone CR) line endings, tabs and any
+  runs of spaces parse exactly like plain ``\n`` and single spaces;
+* a motion row with the wrong number of values fails fast (bounded time and memory, whatever the
+  row's length) with the row's line;
+* NaN, inf, and absurd finite numbers are refused: every OFFSET and motion value must satisfy
+  ``|value| <= 1e7`` (:data:`MAX_ABS_VALUE`; 1e7 cm is 100 km, 1e7 degrees about 28,000 turns),
+  and ``Frame Time`` must lie in ``[1e-7, 1e7]`` seconds;
+* every problem raises :class:`~jaxstyle.errors.MotionDataError` (a ``ValueError`` and a
+  :class:`~jaxstyle.errors.JaxstyleError`) whose message starts with ``<file>, line <n>: ``.
 """
 
 from __future__ import annotations
 
+import csv
 import io
 import os
 import re
@@ -26,6 +39,17 @@ from jaxstyle.motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, quat
 _KNOWN_CHANNELS = POSITION_CHANNELS + ROTATION_CHANNELS
 _EULER_BLOCK = 256  # frames converted from Euler angles at a time
 _FPS_SNAP = 1e-3  # fps within this (relative) of an integer is snapped to it: 1/0.016667 -> 60.
+MAX_ABS_VALUE = 1e7  # largest |value| accepted in OFFSET and motion rows (and bound on Frame Time and fps)
+_BOM = b"\xef\xbb\xbf"
+
+
+def _check_frame_time(frame_time: float, source, lineno: int) -> None:
+    if not (np.isfinite(frame_time) and frame_time > 0):
+        raise MotionDataError(f"Frame Time must be a positive number, got {frame_time}", source, lineno)
+    if not 1.0 / MAX_ABS_VALUE <= frame_time <= MAX_ABS_VALUE:
+        raise MotionDataError(
+            f"Frame Time {frame_time:g} is outside the sane range [{1.0 / MAX_ABS_VALUE:g}, {MAX_ABS_VALUE:g}] seconds",
+            source, lineno)
 
 
 def _fps_from_frame_time(frame_time: float) -> float:
@@ -44,8 +68,7 @@ def frame_rate(path: str | os.PathLike) -> float:
                     frame_time = float(line.split(b":", 1)[1])
                 except ValueError:
                     raise MotionDataError(f"cannot read the frame time from {line.strip()!r}", path, lineno) from None
-                if not frame_time > 0:
-                    raise MotionDataError(f"Frame Time must be a positive number, got {frame_time}", path, lineno)
+                _check_frame_time(frame_time, path, lineno)
                 return _fps_from_frame_time(frame_time)
     raise MotionDataError("no 'Frame Time:' line", path)
 
@@ -56,9 +79,12 @@ def read_bvh(path: str | os.PathLike) -> Motion:
     ``fps`` is ``1 / Frame Time``, snapped to the nearest integer when within 0.1% of it
     (files store ``0.016667`` for 60 fps).
 
+    A leading UTF-8 byte order mark, CRLF line endings and tabs are accepted.
+
     Raises:
-      MotionDataError: the file is missing, empty or malformed, or holds NaN/inf; the message
-        names the file and the line.
+      MotionDataError: the file is missing, empty or malformed (e.g. a motion row with the wrong
+        number of values, however long), or holds NaN/inf or an absurd value (``|value| > 1e7``,
+        :data:`MAX_ABS_VALUE`, in an OFFSET or a motion row); the message names the file and the line.
     """
     path = Path(path)
     try:
@@ -74,10 +100,14 @@ def read_bvh(path: str | os.PathLike) -> Motion:
 
 def parse_bvh(text: str | bytes, source: str = "<string>") -> Motion:
     """Parses BVH text or bytes (see :func:`read_bvh`); ``source`` names it in error messages."""
-    data = text.encode() if isinstance(text, str) else bytes(text)
+    data = text.encode("utf-8", errors="replace") if isinstance(text, str) else bytes(text)
+    if data.startswith(_BOM):
+        data = data[len(_BOM):]
+    if b"\r" in data:  # CRLF (or old Mac CR) line endings: normalise; line numbers are unchanged for CRLF
+        data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     if not data or data.isspace():
         raise MotionDataError("empty file", source, 1)
-    match = re.search(rb"^[ \t]*MOTION[ \t]*\r?$", data, flags=re.MULTILINE)
+    match = re.search(rb"^[ \t]*MOTION[ \t]*$", data, flags=re.MULTILINE)
     if match is None:
         n_lines = data.count(b"\n") + 1
         if re.search(rb"^\s*HIERARCHY\b", data) is None:
@@ -88,9 +118,10 @@ def parse_bvh(text: str | bytes, source: str = "<string>") -> Motion:
     motion_line = len(header_lines)  # 1-based line number of "MOTION"
     # The Frames/Frame Time lines are short: decode a small window after MOTION for them.
     after = match.end() + (1 if data[match.end():match.end() + 1] == b"\n" else 0)
-    window = _decode(data[after:after + 4096])
+    # surrogateescape round-trips every byte, so the consumed characters map back to exact byte counts.
+    window = data[after:after + 4096].decode("utf-8", errors="surrogateescape")
     n_frames, frame_time, consumed, block_first_line = _parse_motion_header(window, motion_line + 1, source)
-    rest = data[after + len(window[:consumed].encode()):]
+    rest = data[after + len(window[:consumed].encode("utf-8", errors="surrogateescape")):]
     n_channels = sum(len(c) for c in skeleton["channels"])
     values = _parse_motion_block(rest, n_frames, n_channels, block_first_line, source)
     return _build_motion(skeleton, values, _fps_from_frame_time(frame_time), source)
@@ -211,6 +242,9 @@ def _floats(tokens: list[str], n: int, what: str, source: str, lineno: int) -> l
         raise MotionDataError(f"{what} needs {n} numbers, got {len(vals)}", source, lineno)
     if not all(np.isfinite(vals)):
         raise MotionDataError(f"{what} holds NaN or inf", source, lineno)
+    if max(abs(v) for v in vals) > MAX_ABS_VALUE:
+        raise MotionDataError(f"{what} holds an absurd value (|value| > {MAX_ABS_VALUE:g}): {' '.join(tokens)}",
+                              source, lineno)
     return vals
 
 
@@ -244,8 +278,7 @@ def _parse_motion_header(rest: str, lineno: int, source: str):
     n_frames, frame_time = int(found["Frames"]), float(found["Frame Time"])
     if n_frames < 1:
         raise MotionDataError(f"Frames must be at least 1, got {n_frames}", source, lineno - 2)
-    if not (np.isfinite(frame_time) and frame_time > 0):
-        raise MotionDataError(f"Frame Time must be a positive number, got {frame_time}", source, lineno - 1)
+    _check_frame_time(frame_time, source, lineno - 1)
     return n_frames, frame_time, pos, lineno
 
 
@@ -261,21 +294,46 @@ def _parse_motion_block(block: bytes, n_frames: int, n_channels: int, first_line
     return _careful_parse(_decode(block), n_frames, n_channels, first_line, source)
 
 
+def _first_row(block: bytes) -> bytes | None:
+    """The first non-blank line of the block (without its newline), or None."""
+    pos = 0
+    while pos < len(block):
+        end = block.find(b"\n", pos)
+        end = len(block) if end < 0 else end
+        line = block[pos:end]
+        if line and not line.isspace():
+            return line
+        pos = end + 1
+    return None
+
+
 def _fast_parse(block: bytes, n_frames: int, n_channels: int) -> np.ndarray | None:
+    if n_channels == 0 or n_frames > block.count(b"\n") + 1:  # too few lines for the rows: let the careful pass say
+        return None
+    first = _first_row(block)
+    # pandas takes the column count from the first row and allocates every later row to that
+    # width: a first row with millions of values would cost gigabytes before any check. So the
+    # first row's width is checked here, with bounded work (split stops after n_channels + 1).
+    if first is None or len(first.split(None, n_channels)) != n_channels:
+        return None
+    # sep=" " is the fast case; it is only safe (and only right) when single spaces separate the values.
+    seps = [" "] if b"\t" not in first and first.count(b" ") + 1 == n_channels else []
+    seps.append(r"\s+")
+
     import pandas as pd  # deferred: importing pandas costs ~0.3 s
 
-    if not block.strip() or n_channels == 0:
-        return None
-    for sep in (" ", r"\s+"):
+    for sep in seps:
         try:
             # dtype is left to inference (faster than forcing float64); a column holding a
             # non-number comes back as strings and fails the conversion below.
             frame = pd.read_csv(io.BytesIO(block), sep=sep, header=None, engine="c", na_filter=False,
-                                skip_blank_lines=True, nrows=n_frames + 1, low_memory=False)
+                                skip_blank_lines=True, nrows=n_frames + 1, low_memory=False,
+                                quoting=csv.QUOTE_NONE)
             values = frame.to_numpy(dtype=np.float64)
-        except (ValueError, TypeError, pd.errors.ParserError, pd.errors.EmptyDataError):
+        except (ValueError, TypeError, OverflowError, pd.errors.ParserError, pd.errors.EmptyDataError):
             continue
-        if values.shape == (n_frames, n_channels) and np.isfinite(values).all():
+        # The comparison is False for NaN, so this also refuses non-finite values.
+        if values.shape == (n_frames, n_channels) and (np.abs(values) <= MAX_ABS_VALUE).all():
             return values
     return None
 
@@ -284,15 +342,16 @@ def _careful_parse(block: str, n_frames: int, n_channels: int, first_line: int, 
     rows = []
     last_row_line = first_line
     for lineno, line in enumerate(block.split("\n"), start=first_line):
-        tokens = line.split()
+        tokens = line.split(None, n_channels)  # bounded: a huge row is not split into millions of strings
         if not tokens:
             continue
         last_row_line = lineno
         if len(rows) == n_frames:
             raise MotionDataError(f"more motion rows than 'Frames: {n_frames}'", source, lineno)
         if len(tokens) != n_channels:
+            count = len(tokens) if len(tokens) < n_channels else sum(1 for _ in re.finditer(r"\S+", line))
             raise MotionDataError(
-                f"motion row {len(rows) + 1} has {len(tokens)} values; the hierarchy has {n_channels} channels",
+                f"motion row {len(rows) + 1} has {count} values; the hierarchy has {n_channels} channels",
                 source, lineno)
         try:
             row = np.array([float(t) for t in tokens])
@@ -302,6 +361,11 @@ def _careful_parse(block: str, n_frames: int, n_channels: int, first_line: int, 
         if not np.isfinite(row).all():
             col = int(np.flatnonzero(~np.isfinite(row))[0])
             raise MotionDataError(f"motion row {len(rows) + 1} holds {tokens[col]} (value {col + 1})", source, lineno)
+        if not (np.abs(row) <= MAX_ABS_VALUE).all():
+            col = int(np.flatnonzero(np.abs(row) > MAX_ABS_VALUE)[0])
+            raise MotionDataError(
+                f"motion row {len(rows) + 1} holds an absurd value {tokens[col]} (value {col + 1}; "
+                f"|value| must be <= {MAX_ABS_VALUE:g})", source, lineno)
         rows.append(row)
     if len(rows) < n_frames:
         raise MotionDataError(
