@@ -11,16 +11,14 @@ import shutil
 import warnings
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 import pytest
 
 import jaxstyle as js
 from jaxstyle.data import datasets as D
-from jaxstyle.train import scan
 from jaxstyle.train.checkpoint import Checkpointer
+from tests.toy_fit import toy_fit
 
 
 def _strict_json(text: str):
@@ -133,31 +131,9 @@ def test_a_short_clip_warns_and_a_style_left_without_clips_is_an_error(mocap, ca
 # --- training and checkpoints -------------------------------------------------------------------
 
 def _fit(directory, poison_epoch: int | None = None, **kw):
-    """A toy run (as in test_scan): least squares on w, 3 epochs of 4 steps; from ``poison_epoch``
-    on, the weights turn NaN while the reported loss stays finite."""
-    X = jnp.asarray(np.random.default_rng(0).normal(size=(12, 3)).astype(np.float32))
-    Y = X @ jnp.array([1.0, -2.0, 0.5])
-    opt = optax.adam(0.1)
-    loss = lambda w, idx, k: jnp.mean((X[idx] @ w - Y[idx]) ** 2)  # noqa: E731
-    run = jax.jit(lambda w, o, idx, keys: scan.train_scan(loss, w, o, idx, jnp.ones(len(idx), bool), keys,
-                                                          optimizer=opt))
-
-    def plan_epoch(epoch):
-        idx = np.random.default_rng(epoch).permutation(12).reshape(4, 3)
-        keys = jax.random.split(jax.random.PRNGKey(epoch), 4)
-
-        def chunk(state, a, b):
-            w, o, losses = run(state["w"], state["opt_state"], jnp.asarray(idx[a:b]), keys[a:b])
-            if poison_epoch is not None and epoch >= poison_epoch:
-                w, losses = w * jnp.nan, jnp.nan_to_num(losses)
-            return {**state, "w": w, "opt_state": o}, losses
-
-        return 4, chunk
-
-    w = jnp.zeros(3)
-    state = {"w": w, "opt_state": opt.init(w), "epoch": jnp.zeros((), jnp.int32)}
-    return scan.fit(state, 3, plan_epoch, directory=directory, run_config={"run": "toy"}, log_every=3,
-                    progress=False, **kw)
+    """The toy run of tests/toy_fit.py (3 epochs); from ``poison_epoch`` on, its weights turn NaN
+    while the reported loss stays finite."""
+    return toy_fit(directory, {"run": "toy"}, poison_epoch=poison_epoch, **kw)
 
 
 @pytest.fixture(scope="module")

@@ -14,6 +14,7 @@ import optax
 import pytest
 
 from jaxstyle.train import scan
+from tests.toy_fit import toy_fit
 
 D, N, B, LR = 4, 40, 5, 0.05
 
@@ -111,29 +112,9 @@ def test_masked_steps_change_nothing_and_chunks_give_the_same_result():
 
 
 def _fit(tmp_path, name, **kw):
-    """A toy run: least squares on w, 3 epochs of 4 steps, chunks of 3 steps."""
-    X = jnp.asarray(np.random.default_rng(0).normal(size=(12, 3)).astype(np.float32))
-    Y = X @ jnp.array([1.0, -2.0, 0.5])
-    opt = optax.adam(0.1)
-    loss = lambda w, idx, k: jnp.mean((X[idx] @ w - Y[idx]) ** 2)  # noqa: E731
-    run = jax.jit(lambda w, o, idx, keys: scan.train_scan(loss, w, o, idx, jnp.ones(len(idx), bool), keys,
-                                                          optimizer=opt))
-
-    def plan_epoch(epoch):
-        idx = np.random.default_rng(epoch).permutation(12).reshape(4, 3)
-        keys = jax.random.split(jax.random.PRNGKey(epoch), 4)
-
-        def chunk(state, a, b):
-            w, o, losses = run(state["w"], state["opt_state"], jnp.asarray(idx[a:b]), keys[a:b])
-            return {**state, "w": w, "opt_state": o}, losses
-
-        return 4, chunk
-
-    w = jnp.zeros(3)
-    state = {"w": w, "opt_state": opt.init(w), "epoch": jnp.zeros((), jnp.int32)}
-    return scan.fit(state, 3, plan_epoch, directory=tmp_path / name, run_config={"run": name}, log_every=3,
-                    end_epoch=lambda e, s, out: {"train_loss": f"{out.mean():.6f}", "seconds": None, "w0": "x"},
-                    progress=False, **kw)
+    """The toy run of tests/toy_fit.py in ``tmp_path/name``, logging a made-up column."""
+    return toy_fit(tmp_path / name, {"run": name},
+                   end_epoch=lambda e, s, out: {"train_loss": f"{out.mean():.6f}", "seconds": None, "w0": "x"}, **kw)
 
 
 def test_fit_resumes_exactly_and_logs_every_epoch(tmp_path):
