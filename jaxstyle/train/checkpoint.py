@@ -130,9 +130,11 @@ class Checkpointer:
     def all_steps(self) -> list[int]:
         return sorted(self._manager.all_steps())
 
-    def save(self, step: int, state: Any) -> None:
-        """Save ``state`` as ``step``; a tree with NaN or infinity is refused (:class:`NonFiniteError`)."""
-        bad = non_finite_leaves(state)
+    def save(self, step: int, state: Any, *, checked_finite: bool = False) -> None:
+        """Save ``state`` as ``step``; a tree with NaN or infinity is refused (:class:`NonFiniteError`).
+        ``checked_finite=True`` skips that scan for a caller that has just made it on this very tree
+        (:func:`jaxstyle.train.scan.fit`), so a large state is not read twice per epoch."""
+        bad = [] if checked_finite else non_finite_leaves(state)
         if bad:
             raise NonFiniteError(f"refusing to save checkpoint step {step} in {self.steps_dir}: "
                                  f"{', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''} hold NaN or infinity")

@@ -318,7 +318,7 @@ def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callabl
             state = {**state, "epoch": jnp.asarray(epoch + 1, jnp.int32)}
             if ckpt is not None:
                 row = dict(end_epoch(epoch, state, out)) if end_epoch is not None else {}
-                ckpt.save(epoch + 1, state)
+                ckpt.save(epoch + 1, state, checked_finite=check_finite)  # _check_finite scanned it
                 row = {"epoch": epoch + 1, **row}
                 row["seconds"] = f"{time.perf_counter() - t0:.2f}"
                 runlog.append_log(log_path, row)
