@@ -267,19 +267,24 @@ def _load(spec: ClipSpec, fps: float | None) -> tuple[Motion, float]:
     return (transform.mirror(motion) if spec.mirror else motion), source_fps
 
 
+def _out_of_range(flat_NxD: np.ndarray) -> np.ndarray:
+    """``(N, D)`` True where a value is not finite or beyond :data:`FEATURE_LIMIT`."""
+    with np.errstate(invalid="ignore"):
+        return ~(np.isfinite(flat_NxD) & (np.abs(flat_NxD) <= FEATURE_LIMIT))
+
+
 def _check_motion(spec: ClipSpec, motion: Motion) -> None:
     """Refuse a clip whose joint positions or rotations are not finite or beyond
     :data:`FEATURE_LIMIT` (a root at 1e300 is a finite number the reader accepts), naming the
     file and the first such frame."""
     for name, arr in (("joint positions", motion.local_positions), ("joint rotations", motion.rotations)):
         flat = np.asarray(arr).reshape(len(arr), -1)
-        with np.errstate(invalid="ignore"):
-            ok = np.isfinite(flat) & (np.abs(flat) <= FEATURE_LIMIT)
-        bad = ~ok.all(axis=1)
+        out = _out_of_range(flat)
+        bad = out.any(axis=1)
         if bad.any():
             f = int(np.argmax(bad))
-            joint = int(np.argmax(~ok[f])) // (flat.shape[1] // len(motion.names))
-            value = flat[f][~ok[f]][0]
+            joint = int(np.argmax(out[f])) // (flat.shape[1] // len(motion.names))
+            value = flat[f][out[f]][0]
             what = "not finite" if not np.isfinite(value) else f"beyond {FEATURE_LIMIT:g}"
             raise MotionDataError(f"frame {spec.start + f} (0-based) has {name} of {motion.names[joint]!r} {what}"
                                   f" ({value:g}; {int(bad.sum())} such frames); fix or cut those frames", spec.path)
@@ -415,10 +420,6 @@ def _long_enough(motion: Motion, spec: ClipSpec, skip_short: bool) -> bool:
     raise MotionDataError(f"{what} (pass skip_short=True to leave such clips out)", spec.path)
 
 
-def _skeleton(motion: Motion) -> tuple[str, ...]:
-    return tuple(motion.names)
-
-
 def _check_skeleton(first: tuple[ClipSpec, tuple[str, ...]], spec: ClipSpec, names: tuple[str, ...]) -> None:
     """Refuse a clip whose skeleton differs from the first clip's (naming both files)."""
     first_spec, first_names = first
@@ -442,14 +443,14 @@ def _check_rows(spec: ClipSpec, motion_fps: float, source_fps: float, arrays, fr
         if arr.size == 0:
             continue
         flat = arr.reshape(len(arr), -1)
-        with np.errstate(invalid="ignore"):
-            bad_rows = ~(np.isfinite(flat) & (np.abs(flat) <= FEATURE_LIMIT)).all(axis=1)
+        out = _out_of_range(flat)
+        bad_rows = out.any(axis=1)
         if not bad_rows.any():
             continue
         r = int(np.argmax(bad_rows))
         frame = int(frames_of(name, r))
         file_frame = spec.start + int(round(frame * source_fps / motion_fps))
-        values = flat[r][~(np.isfinite(flat[r]) & (np.abs(flat[r]) <= FEATURE_LIMIT))]
+        values = flat[r][out[r]]
         raise MotionDataError(
             f"the row of frame {file_frame} (style {spec.style!r}{', mirrored' if spec.mirror else ''}) gives {name} "
             f"{'that are not finite' if not np.isfinite(values).all() else 'beyond ' + format(FEATURE_LIMIT, 'g')} "
@@ -463,7 +464,7 @@ def _encode_all(specs, fps, skip_short, progress, desc, encode):
     kept, per_clip, first, short = [], [], None, {}
     for spec in _progress(specs, desc, progress):
         motion, source_fps = _load(spec, fps)
-        names = _skeleton(motion)
+        names = tuple(motion.names)
         if first is None:
             first = (spec, names)
         else:
