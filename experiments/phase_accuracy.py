@@ -23,7 +23,7 @@ from jaxstyle.labels import contacts, phase
 class Config:
     flat: tuple[str, ...] = ("NewCaptures01_000", "NewCaptures10_000", "NewCaptures11_000")
     stairs: tuple[str, ...] = ("WalkingUpSteps09_000",)
-    speed_thresholds: tuple[float, ...] = (0.1, 0.125, 0.15, 0.175, 0.2)
+    speed_thresholds: tuple[float, ...] = (0.08, 0.1, 0.12, 0.14, 0.16)
 
 
 def files(folder: Path, names: tuple[str, ...]) -> list[Path]:
@@ -74,7 +74,16 @@ def main(config: Config = Config()) -> None:
         fm, fp = summary(flat, speed_threshold=v)
         print(f"  v_max={v:<6g} {fm:.3f} / {fp:.3f}")
     fm, fp = summary(flat, release_speed=None)
-    print(f"  no hysteresis (v_max=0.15 both ways): {fm:.3f} / {fp:.3f}")
+    print(f"  no hysteresis (v_max={phase.DEFAULT_SPEED_THRESHOLD_M_S:g} both ways): {fm:.3f} / {fp:.3f}")
+
+    print("\nContact rule (jaxstyle.labels.contacts): flat median / p90, stairs median / p90")
+    old = dict(contact_rule="paper2022", speed_threshold=0.15, release_speed=0.5, min_lift=0.03)
+    for label, kwargs in (("scaled (default)", {}),
+                          ("paper2022 units, thresholds 0.15 / 0.5 m/s, lift 0.03 m (the earlier default)", old),
+                          ("the same, no merging of landings of both feet", dict(old, merge_window=0.0))):
+        fm, fp = summary(flat, **kwargs)
+        sm, sp = summary(stairs, **kwargs)
+        print(f"  {label}: {fm:.3f} / {fp:.3f}, {sm:.3f} / {sp:.3f}")
 
 
 if __name__ == "__main__":

@@ -143,6 +143,12 @@ CASES = [
     (["render", "{file}", "--config", "{cfg}"], "[render]\nevery = 2.5",
      ["{cfg}: render.every: expected an integer, got 2.5"]),
     (["render", "{file}", "--config", "{dir}"], None, ["--config {dir}: is a folder"]),
+    # play (its checks come before it serves anything)
+    (["play", "--run", "{file}"], None, ["--run {file}: is a file"]),
+    (["play", "--run", "{tmp}/r", "--port", "0"], None, ["--port must be in 1 .. 65535, got 0"]),
+    (["play", "--run", "{tmp}/r", "--rates", "1.5"], None, ["--rates must be in [0, 1), got 1.5"]),
+    (["play", "--run", "{tmp}/r", "--config", "{cfg}"], "[play]\nport = \"web\"",
+     ["{cfg}: play.port: expected an integer, got \"web\""]),
     # bench
     (["bench", "--run", "{file}"], None, ["--run {file}: is a file"]),
     (["bench", "--run", "{file}/sub"], None, ["--run {file}/sub", "{file} is a file"]),

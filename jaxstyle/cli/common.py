@@ -210,6 +210,30 @@ def add_common(parser: argparse.ArgumentParser, run_default: Path | None = DEFAU
     parser.add_argument("--debug", action="store_true", help="show tracebacks instead of one-line errors")
 
 
+def add_joint_map_arg(p: argparse.ArgumentParser) -> None:
+    """``--joint-map FILE``, for every command that reads a style folder (see :func:`joint_map`)."""
+    p.add_argument("--joint-map", type=Path, metavar="FILE",
+                   help="TOML or JSON file of role = [left joint, right joint] (roles: hips, shoulders, ankles, toes, "
+                        "hands; or left_ankle = NAME ...) for a skeleton whose joints are not found by name")
+
+
+def joint_map(args):
+    """The :class:`~jaxstyle.motion.skeleton.JointMap` of ``--joint-map`` (``None`` without one); a
+    missing file or a bad entry is a :class:`CLIError` naming the flag, the file and the key."""
+    path = getattr(args, "joint_map", None)
+    if path is None:
+        return None
+    from jaxstyle.errors import MotionDataError
+    from jaxstyle.motion.skeleton import read_joint_map
+
+    path = Path(path)
+    check_input_file(path, "--joint-map", what="joint map file")
+    try:
+        return read_joint_map(path)
+    except MotionDataError as e:
+        raise CLIError(f"--joint-map {e}") from None
+
+
 def add_base_args(p: argparse.ArgumentParser, *, hidden: int, epochs: int, rank: int) -> None:
     p.add_argument("--styles", nargs="+", help="base (training) styles (default: all but the few-shot ones)")
     p.add_argument("--fewshot-styles", nargs="+",
@@ -221,6 +245,7 @@ def add_base_args(p: argparse.ArgumentParser, *, hidden: int, epochs: int, rank:
     p.add_argument("--rank", type=int, default=rank, help="rank of the CP adapters (paper: 30)")
     p.add_argument("--base-epochs", type=int, default=epochs, help="base training epochs (paper: 25)")
     p.add_argument("--max-seconds", type=float, help="use only the first seconds of each base clip")
+    add_joint_map_arg(p)
 
 
 def add_sweep_args(p: argparse.ArgumentParser, *, epochs: int) -> None:

@@ -6,7 +6,17 @@ import time
 import warnings
 from pathlib import Path
 
-from jaxstyle.cli.common import DATA_HELP, Run, add_common, check_positive, elapsed, ensure_folder, progress
+from jaxstyle.cli.common import (
+    DATA_HELP,
+    Run,
+    add_common,
+    add_joint_map_arg,
+    check_positive,
+    elapsed,
+    ensure_folder,
+    joint_map,
+    progress,
+)
 
 NAME = "data"
 HELP = "make, download or inspect motion data"
@@ -57,6 +67,7 @@ def add_prepare_arguments(p) -> None:
     p.add_argument("--gaits", nargs="+", help="gait codes (default: the locomotion gaits)")
     p.add_argument("--max-seconds", type=float, help="use only the first seconds of each clip")
     p.add_argument("--lpn", action="store_true", help="also build the 2022 LPN rows (local phases, style clips)")
+    add_joint_map_arg(p)
     add_common(p)
 
 
@@ -86,7 +97,7 @@ def prepare(args, run: Run) -> None:
 
     root = pipeline.style_root(args.data)
     styles = tuple(args.styles) if args.styles else pipeline.available_styles(root)
-    specs = pipeline.clip_specs(root, styles, args.gaits, args.max_seconds)
+    specs = pipeline.clip_specs(root, styles, args.gaits, args.max_seconds, joint_map(args))
     t0 = time.perf_counter()
     ds = pipeline.build(specs, run.dir / "cache", progress(args))
     run.say(f"PFNN rows of {root}: {len(ds.inputs):,} rows x {ds.inputs.shape[1]} inputs -> {ds.outputs.shape[1]} "

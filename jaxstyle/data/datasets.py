@@ -50,8 +50,13 @@ from jaxstyle.errors import MotionDataError
 from jaxstyle.labels.phase import global_phase, read_phase_labels
 from jaxstyle.motion import Motion, transform
 from jaxstyle.motion.bvh import read_bvh
+from jaxstyle.motion.skeleton import JointMap
 
-CACHE_VERSION = 3
+CACHE_VERSION = 4
+"""Part of every cache key; raised when the rows of the same files and settings change. 4: the
+labels' contact rule scales with the skeleton and frame rate, and landings of both feet are one
+footstep (jaxstyle.labels.contacts, jaxstyle.labels.phase), which changes the global phase and, off
+100STYLE, the local phases."""
 GAITS_100STYLE = ("BR", "BW", "FR", "FW", "ID", "SR", "SW", "TR1", "TR2", "TR3")
 FEATURE_LIMIT = 1e6
 """The largest magnitude a feature value may have. Features are positions (in the file's units,
@@ -65,7 +70,9 @@ log = logging.getLogger(__name__)
 @dataclasses.dataclass(frozen=True)
 class ClipSpec:
     """One clip of a dataset: frames ``[start, stop)`` of ``path`` (at the file's rate), mirrored
-    or not, labelled ``style``; ``phase_labels`` reads the PFNN ``.phase`` file for the phase."""
+    or not, labelled ``style``; ``phase_labels`` reads the PFNN ``.phase`` file for the phase;
+    ``joint_map`` places the joints of a skeleton whose feet, hips, shoulders or hands are not found
+    by name (:class:`jaxstyle.motion.skeleton.JointMap`; part of the cache key)."""
 
     path: str
     style: str
@@ -74,15 +81,38 @@ class ClipSpec:
     mirror: bool = False
     gait: str = ""
     phase_labels: bool = False
+    joint_map: JointMap | None = None
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d.pop("joint_map")
+        if self.joint_map is not None:  # no key without a map: cache keys of other clips are unchanged
+            d["joint_map"] = self.joint_map.to_json()
+        return d
+
+    @classmethod
+    def from_json(cls, d: Mapping) -> "ClipSpec":
+        d = dict(d)
+        d["joint_map"] = JointMap.from_json(d.get("joint_map"))
+        return cls(**d)
+
+
+def with_joint_map(specs: Sequence[ClipSpec], joint_map: JointMap | None) -> list[ClipSpec]:
+    """``specs`` with ``joint_map`` set on those that have none (``None``: unchanged)."""
+    if joint_map is None:
+        return list(specs)
+    return [s if s.joint_map is not None else dataclasses.replace(s, joint_map=joint_map) for s in specs]
 
 
 def specs_from_folder(folder: str | os.PathLike, *, styles: Mapping[str, str] | None = None,
-                      pattern: str | None = None, mirror: bool = False) -> list[ClipSpec]:
+                      pattern: str | None = None, mirror: bool = False,
+                      joint_map: JointMap | None = None) -> list[ClipSpec]:
     """Clips of every ``*.bvh`` under ``folder``.
 
     Either ``styles`` maps a file name (or its stem) to a style, files it does not name being
     skipped, or ``pattern`` is a regular expression with a ``style`` group matched against the
-    file stem. ``mirror`` adds a mirrored copy of each clip.
+    file stem. ``mirror`` adds a mirrored copy of each clip. ``joint_map`` (every ``specs_*``
+    function takes one) goes on every clip (see :class:`ClipSpec`).
     """
     if (styles is None) == (pattern is None):
         raise ValueError("give exactly one of styles= or pattern=")
@@ -108,7 +138,7 @@ def specs_from_folder(folder: str | os.PathLike, *, styles: Mapping[str, str] | 
             raise ValueError(f"styles {missing} name no file under {folder}")
     if not specs:
         raise ValueError(f"no BVH file under {folder} matches the style {'mapping' if styles else 'pattern'}")
-    return specs
+    return with_joint_map(specs, joint_map)
 
 
 def _read_csv(path: Path) -> list[dict[str, str]]:
@@ -125,7 +155,7 @@ def symmetric_styles(path: str | os.PathLike) -> dict[str, bool]:
 
 
 def specs_100style(root: str | os.PathLike, *, styles: Sequence[str] | None = None,
-                   gaits: Sequence[str] = GAITS_100STYLE) -> list[ClipSpec]:
+                   gaits: Sequence[str] = GAITS_100STYLE, joint_map: JointMap | None = None) -> list[ClipSpec]:
     """Clips of a 100STYLE folder: every ``<Style>/<Style>_<GAIT>.bvh`` present, cut to its
     ``Frame_Cuts.csv`` range, mirrored too when ``Dataset_List.csv`` says the style is symmetric."""
     root = Path(root)
@@ -148,24 +178,25 @@ def specs_100style(root: str | os.PathLike, *, styles: Sequence[str] | None = No
                 specs.append(ClipSpec(str(path), style, int(start), int(stop), mirror, gait))
     if wanted is not None and (missing := sorted(wanted - {s.style for s in specs})):
         raise ValueError(f"styles {missing} have no clip under {root}")
-    return specs
+    return with_joint_map(specs, joint_map)
 
 
 def specs_xia(folder: str | os.PathLike, *, contents: Sequence[str] | None = None,
-              mirror: bool = True) -> list[ClipSpec]:
+              mirror: bool = True, joint_map: JointMap | None = None) -> list[ClipSpec]:
     """Clips named ``<style>_<content>_000.bvh`` (Xia et al. 2015); mirrored too by default."""
-    specs = specs_from_folder(folder, pattern=r"(?P<style>[a-z]+)_(?P<content>\d+)_\d+", mirror=mirror)
+    specs = specs_from_folder(folder, pattern=r"(?P<style>[a-z]+)_(?P<content>\d+)_\d+", mirror=mirror,
+                              joint_map=joint_map)
     if contents is not None:
         specs = [s for s in specs if Path(s.path).stem.split("_")[1] in set(contents)]
     return specs
 
 
-def specs_pfnn(folder: str | os.PathLike, style: str = "pfnn") -> list[ClipSpec]:
+def specs_pfnn(folder: str | os.PathLike, style: str = "pfnn", joint_map: JointMap | None = None) -> list[ClipSpec]:
     """PFNN captures that have ``.phase`` labels; the phase comes from the labels."""
     files = sorted(p for p in Path(folder).glob("*.bvh") if p.with_suffix(".phase").is_file())
     if not files:
         raise ValueError(f"no BVH file with a .phase file in {folder}")
-    return [ClipSpec(str(f), style, phase_labels=True) for f in files]
+    return [ClipSpec(str(f), style, phase_labels=True, joint_map=joint_map) for f in files]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,7 +206,9 @@ class Dataset:
     into ``styles``), ``clip`` (index into ``specs``) and ``frame``; ``clips (C, 240, 300)`` with
     ``clip_style (C,)``, ``clip_source (C,)`` (index into ``specs``) and ``clip_start (C,)`` (first
     frame) for the LPN (empty for the PFNN); ``split (N,)`` 0/1/2 for train,
-    validation, test (-1 in a gap); and the input/output statistics of :meth:`normalisers`."""
+    validation, test (-1 in a gap); the input/output statistics of :meth:`normalisers`; and for
+    the LPN ``global_phase (N,)``, the PFNN phase of each row (:func:`jaxstyle.global_phase`), the
+    gate of Table 2's PFNN-backbone models (empty for the PFNN layout, whose ``phases`` hold it)."""
 
     styles: tuple[str, ...]
     specs: tuple[ClipSpec, ...]
@@ -194,6 +227,7 @@ class Dataset:
     input_std: np.ndarray
     output_mean: np.ndarray
     output_std: np.ndarray
+    global_phase: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.float32))
 
     def rows_of_style(self, name: str, split: str | None = None) -> np.ndarray:
         """Row indices of a style, optionally of one split (``"train"``, ``"validation"``, ``"test"``)."""
@@ -255,6 +289,9 @@ class Dataset:
 def _load(spec: ClipSpec, fps: float | None) -> tuple[Motion, float]:
     """The motion of a spec (see :func:`load_clip`) and the file's own frame rate."""
     motion = read_bvh(spec.path)
+    if spec.joint_map is not None:
+        spec.joint_map.check(motion.names, spec.path)
+        motion = motion.replace(joint_map=spec.joint_map)
     source_fps = motion.fps
     stop = motion.num_frames if spec.stop is None else min(spec.stop, motion.num_frames)
     if not 0 <= spec.start < stop:
@@ -298,7 +335,7 @@ def load_clip(spec: ClipSpec, fps: float | None = None) -> Motion:
 def _cache_key(kind: str, specs: Sequence[ClipSpec], settings: dict) -> str:
     h = hashlib.sha256()
     h.update(json.dumps({"kind": kind, "version": CACHE_VERSION, "settings": settings,
-                         "specs": [dataclasses.asdict(s) for s in specs]}, sort_keys=True, allow_nan=False).encode())
+                         "specs": [s.to_json() for s in specs]}, sort_keys=True, allow_nan=False).encode())
     for path in sorted({s.path for s in specs} | {str(Path(s.path).with_suffix(".phase")) for s in specs
                                                   if s.phase_labels}):
         h.update(path.encode())
@@ -315,13 +352,13 @@ def _cached(kind: str, specs: Sequence[ClipSpec], settings: dict, cache_dir, bui
             meta = json.loads(str(data["meta"]))
             arrays = {k: data[k] for k in data.files if k != "meta"}
         if all(np.isfinite(v).all() for v in arrays.values() if np.issubdtype(v.dtype, np.inexact)):
-            return Dataset(styles=tuple(meta["styles"]), specs=tuple(ClipSpec(**s) for s in meta["specs"]),
+            return Dataset(styles=tuple(meta["styles"]), specs=tuple(ClipSpec.from_json(s) for s in meta["specs"]),
                            **arrays)
         log.warning("%s holds NaN or infinity (cached by an older jaxstyle); building it again", path)
     dataset = build()
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    meta = json.dumps({"styles": dataset.styles, "specs": [dataclasses.asdict(s) for s in dataset.specs]},
+    meta = json.dumps({"styles": dataset.styles, "specs": [s.to_json() for s in dataset.specs]},
                       allow_nan=False)
     arrays = {f.name: getattr(dataset, f.name) for f in dataclasses.fields(dataset)
               if f.name not in ("styles", "specs")}
@@ -494,13 +531,15 @@ def _encode_all(specs, fps, skip_short, progress, desc, encode):
 
 def build_pfnn_dataset(specs: Sequence[ClipSpec], *, fps: float = 60.0, cache_dir: str | os.PathLike | None = None,
                        split: SplitSettings = SplitSettings(), skip_short: bool = False,
-                       progress: bool = False) -> Dataset:
+                       progress: bool = False, joint_map: JointMap | None = None) -> Dataset:
     """2018 PFNN rows of all clips at ``fps`` (the paper: 60). The phase is the ``.phase`` labels
     (resampled by nearest frame) when the spec says so, else :func:`jaxstyle.global_phase`.
     A clip shorter than the trajectory window is an error naming the file, or is skipped with a
-    warning when ``skip_short``."""
+    warning when ``skip_short``. ``joint_map`` goes on every clip that has none (see
+    :class:`ClipSpec`)."""
     if not specs:
         raise ValueError("no clips")
+    specs = with_joint_map(specs, joint_map)
 
     def encode(spec, motion, source_fps):
         if spec.phase_labels:
@@ -522,19 +561,22 @@ def build_pfnn_dataset(specs: Sequence[ClipSpec], *, fps: float = 60.0, cache_di
 
 def build_lpn_dataset(specs: Sequence[ClipSpec], *, cache_dir: str | os.PathLike | None = None,
                       split: SplitSettings = SplitSettings(), skip_short: bool = False,
-                      progress: bool = False) -> Dataset:
+                      progress: bool = False, joint_map: JointMap | None = None) -> Dataset:
     """2022 LPN rows and style clips of all clips (at the files' rate; 100STYLE is 60 fps).
-    Short clips are handled as in :func:`build_pfnn_dataset`."""
+    Short clips and ``joint_map`` are handled as in :func:`build_pfnn_dataset`."""
     if not specs:
         raise ValueError("no clips")
+    specs = with_joint_map(specs, joint_map)
 
     def encode(spec, motion, source_fps):
-        f = encode_lpn(motion)
-        return f.inputs, f.outputs, f.phases, f.frames, f.clips, f.clip_starts
+        f = encode_lpn(motion)  # the global phase rides as a 9th phase column until _assemble is done
+        return f.inputs, f.outputs, np.column_stack([f.phases, f.global_phase]), f.frames, f.clips, f.clip_starts
 
     def build():
         kept, per_clip = _encode_all(specs, None, skip_short, progress, "LPN features", encode)
-        return _assemble(kept, per_clip, _lpn_groups, with_clips=True, split=split)
+        d = _assemble(kept, per_clip, _lpn_groups, with_clips=True, split=split)
+        return dataclasses.replace(d, phases=np.ascontiguousarray(d.phases[:, :-1]),
+                                   global_phase=np.ascontiguousarray(d.phases[:, -1]))
 
-    settings = {"skip_short": skip_short, "split": dataclasses.asdict(split)}
+    settings = {"skip_short": skip_short, "split": dataclasses.asdict(split), "global_phase": True}
     return _cached("lpn", specs, settings, cache_dir, build)

@@ -19,6 +19,7 @@ from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.motion.bvh import frame_rate
+from jaxstyle.motion.skeleton import JointMap
 
 PAPER_FEWSHOT = ("Aeroplane", "Elated", "Rushed")
 """The held-out styles of ``experiments/fewshot_sweep.py`` (in the shared 100STYLE sample)."""
@@ -91,7 +92,8 @@ def cut(spec: ClipSpec, seconds: float | None) -> ClipSpec:
     return dataclasses.replace(spec, stop=stop if spec.stop is None else min(spec.stop, stop))
 
 
-def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None) -> list[ClipSpec]:
+def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None,
+                 joint_map: JointMap | None = None) -> list[ClipSpec]:
     """Whole-file clips of ``<root>/<Style>/<Style>_<GAIT>.bvh`` for a folder without
     ``Frame_Cuts.csv``: every gait found unless ``gaits`` names some; each clip mirrored too unless
     ``Dataset_List.csv`` (100STYLE's columns ``Style Name``, ``Symmetric``) says the style is not
@@ -105,7 +107,7 @@ def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None 
             if gaits is not None and gait not in gaits:
                 continue
             for mirror in (False, True) if symmetric.get(style, True) else (False,):
-                specs.append(ClipSpec(str(f), style, mirror=mirror, gait=gait))
+                specs.append(ClipSpec(str(f), style, mirror=mirror, gait=gait, joint_map=joint_map))
     missing = sorted(set(styles) - {s.style for s in specs})
     if missing:
         raise PipelineError(f"styles {missing} have no clip under {root}"
@@ -114,16 +116,39 @@ def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None 
 
 
 def clip_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None,
-               max_seconds: float | None = None) -> list[ClipSpec]:
+               max_seconds: float | None = None, joint_map: JointMap | None = None) -> list[ClipSpec]:
     """Clips of ``styles`` and ``gaits``, each cut to its first ``max_seconds`` (default: the whole
     Frame_Cuts range, or the whole file); mirrored where the style is symmetric. With
     ``Frame_Cuts.csv`` (the 100STYLE layout) ``gaits`` defaults to :data:`LOCOMOTION_GAITS`, without
-    it to every gait found (:func:`folder_specs`)."""
+    it to every gait found (:func:`folder_specs`). ``joint_map`` (``--joint-map``) goes on every
+    clip, for skeletons whose joints are not found by name (:class:`jaxstyle.motion.skeleton.JointMap`)."""
     if not (root / "Frame_Cuts.csv").is_file():
-        return [cut(s, max_seconds) for s in folder_specs(root, styles, gaits)]
+        return [cut(s, max_seconds) for s in folder_specs(root, styles, gaits, joint_map)]
     gaits = tuple(gaits or LOCOMOTION_GAITS)
     try:
-        specs = datasets.specs_100style(root, styles=styles, gaits=gaits)
+        specs = datasets.specs_100style(root, styles=styles, gaits=gaits, joint_map=joint_map)
     except ValueError as e:
         raise PipelineError(f"{e} (gaits {', '.join(gaits)})") from None
     return [cut(s, max_seconds) for s in specs]
+
+
+def user_clip_specs(clips: Sequence[str | os.PathLike], mirror: bool,
+                    seconds: tuple[float, float] | None = None, joint_map: JointMap | None = None) -> list[ClipSpec]:
+    """One new style per user BVH file, named by the file's stem, and its mirror when ``mirror``;
+    ``seconds`` = (start, end) keeps that range of each file."""
+    if seconds is not None and not 0 <= seconds[0] < seconds[1]:
+        raise PipelineError(f"clip range {seconds[0]:g} {seconds[1]:g}: need 0 <= START < END")
+    paths = [Path(c) for c in clips]
+    if len({p.stem for p in paths}) != len(paths):
+        raise PipelineError("two clip files share a name; each file's stem names its style")
+    specs = []
+    for path in paths:
+        if not path.is_file():
+            raise PipelineError(f"clip {path}: no such file")
+        start, stop = 0, None
+        if seconds is not None:
+            fps = frame_rate(path)
+            start, stop = int(round(seconds[0] * fps)), int(round(seconds[1] * fps))
+        copies = (False, True) if mirror else (False,)
+        specs += [ClipSpec(str(path), path.stem, start, stop, mirror=m, joint_map=joint_map) for m in copies]
+    return specs

@@ -2,11 +2,26 @@
 
 A joint is in contact with the floor in a frame when the ball of radius ``d_max`` centred on it
 touches the floor plane **and** its speed is below ``v_max``; the paper's defaults are
-``d_max = 0.01 m`` and ``v_max = 0.15 m/s``. Two details the paper leaves open are fixed here:
+``d_max = 0.01 m`` and ``v_max = 0.15 m/s``. Three details the paper leaves open are fixed here:
 
-* **Units.** Thresholds are given in metres and converted with :func:`estimate_units_per_meter`, which
-  recognises metre, centimetre and millimetre skeletons from their height and otherwise assumes
-  a 1.75 m tall character (the CMU skeletons of Holden et al. are about 24 units tall).
+* **Units and size** (``rule``, see :data:`CONTACT_RULES`). The paper's thresholds are for the
+  100STYLE actor, in metres, at 60 fps. The default rule, ``"scaled"``, measures them in the
+  skeleton's own size: one "metre" is the skeleton's leg length (thigh + shin, :func:`leg_length`)
+  divided by the 100STYLE skeleton's, 0.8696 m (:func:`body_units_per_meter`). On 100STYLE this
+  is exactly 100 file units (centimetres), so the rule is the paper's; on any other skeleton it
+  is the paper's rule applied to the same motion scaled to the 100STYLE actor's size, so a clip
+  gives the same contacts in metres, centimetres, inches or millimetres and when the whole
+  skeleton is shrunk or grown. The paper's own setting, ``"paper2022"``, converts metres with
+  :func:`estimate_units_per_meter`, which recognises metre, centimetre and millimetre skeletons
+  from their height and otherwise assumes a 1.75 m tall character; it jumps at the edges of those
+  height ranges (a 1.19 m and a 1.21 m tall skeleton get thresholds 100 times apart) and reads
+  Holden's CMU skeletons (24 units tall, legs of 14.8 units) as having 1.08 m legs.
+* **Frame rate.** Under ``"scaled"`` a joint's speed is its displacement over a fixed time span,
+  :data:`SPEED_SPAN_S` (the 2/60 s of a central difference at the paper's 60 fps), interpolated
+  between frames where needed (:func:`joint_speeds`): the same at 30, 60 or 120 fps, where
+  per-frame central differences of a 120 fps capture see twice its jitter. ``"paper2022"`` uses
+  per-frame central differences. Gaps and minimum durations (``max_gap``, ``min_duration``) are
+  in seconds under both rules.
 * **Floor.** A joint sits above the floor by its own clearance (an ankle is ~8 cm up even when
   planted), so "the ball touches the floor" is measured from the height the joint has when
   planted: the floor of joint ``j`` in a clip is a low percentile (default 5th) of its height over
@@ -30,6 +45,15 @@ HEIGHT_THRESHOLD_M = 0.01  # d_max, 2022 section 4.1.2
 SPEED_THRESHOLD_M_S = 0.15  # v_max, 2022 section 4.1.2
 ASSUMED_HEIGHT_M = 1.75
 FLOOR_PERCENTILE = 5.0
+REFERENCE_LEG_LENGTH_M = 0.869581919967294
+"""Thigh + shin of the 100STYLE skeleton (86.958 cm), the actor the paper's thresholds are for."""
+SPEED_SPAN_S = 2.0 / 60.0
+"""Time span of the ``"scaled"`` rule's speeds: a central difference at the paper's 60 fps."""
+CONTACT_RULES = ("scaled", "paper2022")
+"""``"scaled"`` (default): the paper's thresholds for a body of the skeleton's leg length, speeds
+over :data:`SPEED_SPAN_S`; ``"paper2022"``: the paper's setting, metres from
+:func:`estimate_units_per_meter`, speeds by per-frame central differences."""
+DEFAULT_CONTACT_RULE = "scaled"
 
 
 def estimate_units_per_meter(motion: Motion) -> float:
@@ -46,12 +70,67 @@ def estimate_units_per_meter(motion: Motion) -> float:
     return height / ASSUMED_HEIGHT_M
 
 
-def joint_speeds(positions_TxJx3: np.ndarray, fps: float) -> np.ndarray:
-    """``(T, J)`` speed of each joint in units per second (central differences, one-sided at ends)."""
+def leg_length(motion: Motion, feet: "FootJoints | None" = None) -> float:
+    """Rest length of the legs in file units: ankle-to-knee plus knee-to-hip bone (the offsets of
+    the ankle and of its parent), averaged over both legs."""
+    feet = feet or FootJoints.find(motion)
+    lengths = [np.linalg.norm(motion.offsets[a]) + (np.linalg.norm(motion.offsets[motion.parents[a]])
+                                                    if motion.parents[a] >= 0 else 0.0) for a in feet.ankles]
+    length = float(np.mean(lengths))
+    if not (np.isfinite(length) and length > 0):
+        raise MotionDataError(f"the legs have length {length:g}; cannot scale contact thresholds", motion.source)
+    return length
+
+
+def body_units_per_meter(motion: Motion, feet: "FootJoints | None" = None) -> float:
+    """File units per metre of a body the size of the 100STYLE actor: :func:`leg_length` over
+    :data:`REFERENCE_LEG_LENGTH_M`. Exactly 100 on 100STYLE; scales with the skeleton."""
+    return leg_length(motion, feet) / REFERENCE_LEG_LENGTH_M
+
+
+def contact_units_per_meter(motion: Motion, rule: str = DEFAULT_CONTACT_RULE,
+                            feet: "FootJoints | None" = None) -> float:
+    """The file units per metre a contact ``rule`` (:data:`CONTACT_RULES`) measures thresholds in."""
+    if rule == "scaled":
+        return body_units_per_meter(motion, feet)
+    if rule == "paper2022":
+        return estimate_units_per_meter(motion)
+    raise ValueError(f"unknown contact rule {rule!r}; expected one of {CONTACT_RULES}")
+
+
+def speed_span(rule: str) -> float | None:
+    """The speed time span of a contact ``rule`` (``None``: per-frame central differences)."""
+    if rule not in CONTACT_RULES:
+        raise ValueError(f"unknown contact rule {rule!r}; expected one of {CONTACT_RULES}")
+    return SPEED_SPAN_S if rule == "scaled" else None
+
+
+def joint_speeds(positions_TxJx3: np.ndarray, fps: float, span: float | None = None) -> np.ndarray:
+    """``(T, J)`` speed of each joint in units per second.
+
+    ``span=None``: central differences over one frame each way (one-sided at the ends). ``span``
+    in seconds: ``|p(t + span/2) - p(t - span/2)| / span``, positions between frames interpolated
+    linearly and times clipped to the clip (so the span shrinks at the ends); at 60 fps with
+    ``span = 2/60`` this is exactly the central difference, at 120 fps it spans two frames each way.
+    """
     pos = np.asarray(positions_TxJx3, dtype=np.float64)
     if pos.shape[0] < 2:
         return np.zeros(pos.shape[:2])
-    return np.linalg.norm(np.gradient(pos, axis=0), axis=-1) * fps
+    if span is None:
+        return np.linalg.norm(np.gradient(pos, axis=0), axis=-1) * fps
+    if not span > 0:
+        raise ValueError(f"speed span must be positive, got {span}")
+    last = pos.shape[0] - 1
+    t = np.arange(pos.shape[0], dtype=np.float64)
+    half = 0.5 * span * fps
+    ahead, behind = np.minimum(t + half, last), np.maximum(t - half, 0.0)
+
+    def at(x):
+        i0 = np.minimum(np.floor(x).astype(np.int64), last - 1)
+        w = (x - i0)[:, None, None]
+        return pos[i0] * (1.0 - w) + pos[i0 + 1] * w
+
+    return np.linalg.norm(at(ahead) - at(behind), axis=-1) / ((ahead - behind)[:, None] / fps)
 
 
 def floor_heights(heights_TxJ: np.ndarray, percentile: float = FLOOR_PERCENTILE) -> np.ndarray:
@@ -116,7 +195,7 @@ def joint_contacts(positions_TxJx3: np.ndarray, fps: float, *, units_per_meter: 
                    height_threshold: float | None = HEIGHT_THRESHOLD_M,
                    speed_threshold: float | None = SPEED_THRESHOLD_M_S,
                    release_speed: float | None = None,
-                   floor_J: np.ndarray | None = None) -> np.ndarray:
+                   floor_J: np.ndarray | None = None, speed_span: float | None = None) -> np.ndarray:
     """``(T, J)`` contact flags of the given joints (2022 section 4.1.2).
 
     Args:
@@ -132,6 +211,8 @@ def joint_contacts(positions_TxJx3: np.ndarray, fps: float, *, units_per_meter: 
         contact. ``None`` (the paper's rule) tests every frame against ``speed_threshold`` alone.
       floor_J: height of each joint when planted; estimated per clip with :func:`floor_heights`
         when omitted.
+      speed_span: seconds; speeds over this time span (see :func:`joint_speeds`); ``None``:
+        per-frame central differences.
     """
     pos = np.asarray(positions_TxJx3, dtype=np.float64)
     if pos.ndim != 3 or pos.shape[-1] != 3:
@@ -144,7 +225,7 @@ def joint_contacts(positions_TxJx3: np.ndarray, fps: float, *, units_per_meter: 
         floor = floor_heights(heights) if floor_J is None else np.asarray(floor_J, dtype=np.float64)
         contact &= heights - floor < height_threshold * units_per_meter
     if speed_threshold is not None:
-        speed = joint_speeds(pos, fps)
+        speed = joint_speeds(pos, fps, speed_span)
         slow = speed < speed_threshold * units_per_meter
         if release_speed is not None:
             if release_speed < speed_threshold:
@@ -166,7 +247,7 @@ class FootJoints:
              toes: Sequence[str] | None = None) -> "FootJoints":
         """Find the feet by name (see :func:`jaxstyle.motion.skeleton.find_feet_and_hands`) unless given."""
         if ankles is None or toes is None:
-            found = skeleton.find_feet_and_hands(motion.names, motion.source)
+            found = skeleton.find_feet_and_hands(motion.names, motion.source, motion.joint_map)
             ankles = ankles or found["ankles"]
             toes = toes or found["toes"]
         return cls(tuple(motion.joint_indices(list(ankles))), tuple(motion.joint_indices(list(toes))))
@@ -212,13 +293,17 @@ def foot_contacts(motion: Motion, *, height_threshold: float | None = HEIGHT_THR
                   speed_threshold: float | None = SPEED_THRESHOLD_M_S,
                   release_speed: float | None = None,
                   units_per_meter: float | None = None, max_gap: float = 0.0, min_duration: float = 0.0,
-                  feet: FootJoints | None = None, positions_TxJx3: np.ndarray | None = None) -> FootContacts:
+                  feet: FootJoints | None = None, positions_TxJx3: np.ndarray | None = None,
+                  rule: str = DEFAULT_CONTACT_RULE) -> FootContacts:
     """Heel and toe contacts of both feet (2022 section 4.1.2), left then right.
 
     Args:
       height_threshold, speed_threshold: ``d_max`` (m) and ``v_max`` (m/s), paper defaults;
         ``None`` disables a test; ``release_speed`` adds hysteresis (see :func:`joint_contacts`).
-      units_per_meter: file units per metre; guessed by :func:`estimate_units_per_meter` when omitted.
+      rule: ``"scaled"`` (default: thresholds for the skeleton's size, speeds over a fixed time
+        span) or ``"paper2022"`` (the paper's setting); see the module docstring.
+      units_per_meter: file units per metre; when omitted, the rule's
+        (:func:`contact_units_per_meter`).
       max_gap, min_duration: in seconds; gaps up to ``max_gap`` inside a contact are filled and
         contacts shorter than ``min_duration`` dropped (both 0, i.e. off, by default as in the
         paper; :func:`jaxstyle.labels.phase.global_phase` uses them to ignore single-frame flicker).
@@ -226,12 +311,13 @@ def foot_contacts(motion: Motion, *, height_threshold: float | None = HEIGHT_THR
       positions_TxJx3: global joint positions, if already computed.
     """
     feet = feet or FootJoints.find(motion)
-    upm = estimate_units_per_meter(motion) if units_per_meter is None else float(units_per_meter)
+    span = speed_span(rule)
+    upm = contact_units_per_meter(motion, rule, feet) if units_per_meter is None else float(units_per_meter)
     pos = kinematics.global_positions(motion) if positions_TxJx3 is None else positions_TxJx3
     joints = list(feet.ankles) + list(feet.toes)
     flags = joint_contacts(pos[:, joints], motion.fps, units_per_meter=upm,
                            height_threshold=height_threshold, speed_threshold=speed_threshold,
-                           release_speed=release_speed)
+                           release_speed=release_speed, speed_span=span)
     flags = clean_runs(flags, max_gap=int(round(max_gap * motion.fps)),
                        min_length=int(round(min_duration * motion.fps)))
     return FootContacts(heel=flags[:, :2], toe=flags[:, 2:])

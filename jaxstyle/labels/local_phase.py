@@ -158,7 +158,7 @@ class LocalPhases:
 
 def default_bones(motion: Motion) -> list[str]:
     """Right hand, left hand, right foot (ankle), left foot, found by name."""
-    found = skeleton.find_feet_and_hands(motion.names, motion.source)
+    found = skeleton.find_feet_and_hands(motion.names, motion.source, motion.joint_map)
     (lh, rh), (la, ra) = found["hands"], found["ankles"]
     return [rh, lh, ra, la]
 
@@ -171,7 +171,8 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
                  f_min: float = F_MIN_HZ, f_max: float = F_MAX_HZ, num_freqs: int = 64, refine: int = 2,
                  max_amplitude: float | None = MAX_AMPLITUDE,
                  feet: contacts_lib.FootJoints | None = None,
-                 positions_TxJx3: np.ndarray | None = None) -> LocalPhases:
+                 positions_TxJx3: np.ndarray | None = None,
+                 contact_rule: str = contacts_lib.DEFAULT_CONTACT_RULE) -> LocalPhases:
     """Local phases of the hands and feet of a clip (2022 paper section 4.1).
 
     Args:
@@ -183,7 +184,12 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
         foot whose contact starts number under half the other foot's (it seldom touches down,
         e.g. the lifted leg of a hopping style) uses the contact-free source.
       height_threshold, speed_threshold: 2022 contact thresholds (m, m/s).
-      units_per_meter: file units per metre (guessed from the skeleton when omitted).
+      units_per_meter: file units per metre; when omitted, the contact rule's
+        (:func:`jaxstyle.labels.contacts.contact_units_per_meter`), also used for the
+        contact-free source's metres.
+      contact_rule: ``"scaled"`` (default: the thresholds for the skeleton's size, speeds over a
+        fixed time span; the same as the paper's rule on 100STYLE) or ``"paper2022"`` (the paper's
+        setting); see :mod:`jaxstyle.labels.contacts`.
       window, f_min, f_max, num_freqs, refine, max_amplitude: see
         :func:`jaxstyle.labels.sinusoid.fit_sinusoids`; ``max_amplitude=None`` fits without a bound.
       feet: ankle and toe joints for contacts; found by name when omitted.
@@ -194,13 +200,14 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
     bones = default_bones(motion) if bones is None else list(bones)
     feet = feet or contacts_lib.FootJoints.find(motion)
     ankle_names = [motion.names[i] for i in feet.ankles]  # left, right
-    upm = contacts_lib.estimate_units_per_meter(motion) if units_per_meter is None else float(units_per_meter)
+    upm = (contacts_lib.contact_units_per_meter(motion, contact_rule, feet) if units_per_meter is None
+           else float(units_per_meter))
 
     g_pos = kinematics.global_positions(motion) if positions_TxJx3 is None else positions_TxJx3
     if not np.isfinite(g_pos).all():
         raise MotionDataError("joint positions contain NaN or infinity", motion.source)
     fc = contacts_lib.foot_contacts(motion, height_threshold=height_threshold, speed_threshold=speed_threshold,
-                                    units_per_meter=upm, feet=feet, positions_TxJx3=g_pos)
+                                    units_per_meter=upm, feet=feet, positions_TxJx3=g_pos, rule=contact_rule)
     foot = fc.foot  # (T, 2) left, right
 
     chosen = []

@@ -14,6 +14,13 @@ Behaviour away from steps, by design:
   which the phase advances slowly and linearly, exactly as the hand labels do.
 * **Same foot twice** (the other foot's step was missed or shuffled): a whole cycle is assumed
   between the two starts.
+* **Both feet land together** (a two-footed hop, a jump, a shuffle): contact starts closer than
+  ``merge_window`` (0.1 s, at least :data:`MIN_MERGE_FRAMES` frames) are one landing, and one foot
+  is kept for it (:func:`step_starts`): the one that alternates with the previous step, else the
+  one lifted higher before landing. So the phase never advances by half a cycle between two
+  frames, and the choice does not depend on which foot is called left: the steps of a mirrored
+  clip are the original's with the feet swapped (before, a landing of both feet in one frame kept
+  the left foot first, and the mirrored clip lost or gained a step after it).
 """
 
 from __future__ import annotations
@@ -27,13 +34,21 @@ from jaxstyle.errors import MotionDataError
 from jaxstyle.labels import contacts as contacts_lib
 from jaxstyle.motion import Motion, kinematics
 
-# Chosen on the hand-labelled PFNN captures; see the README table and experiments/phase_accuracy.py.
+# Chosen on the hand-labelled PFNN captures; see docs/motion_and_labels.md and experiments/phase_accuracy.py.
+# The speeds and the lift are metres of a body the size of the 100STYLE actor (the "scaled" contact rule
+# of jaxstyle.labels.contacts). They were tuned as 0.15 m/s, 0.5 m/s and 0.03 m with the PFNN skeleton read
+# as 13.65 units per metre (a 1.75 m person); its legs make it 17.02 units per body metre, so the same
+# thresholds in file units, the ones tuned, are 0.12, 0.4 and 0.024 body metres.
 DEFAULT_CONTACT_MOMENT = "toe"
-DEFAULT_SPEED_THRESHOLD_M_S = 0.15
+DEFAULT_SPEED_THRESHOLD_M_S = 0.12
 DEFAULT_MAX_GAP_S = 0.05
 DEFAULT_MIN_DURATION_S = 0.1
-DEFAULT_MIN_LIFT_M = 0.03
-DEFAULT_RELEASE_SPEED_M_S = 0.5
+DEFAULT_MIN_LIFT_M = 0.024
+DEFAULT_RELEASE_SPEED_M_S = 0.4
+DEFAULT_MERGE_WINDOW_S = 0.1
+MIN_MERGE_FRAMES = 4
+"""With contact starts at least ``MIN_MERGE_FRAMES + 1`` frames apart, the phase moves at most
+1/5 cycle per frame (a whole cycle between two starts of the same foot), under the 0.25 limit."""
 
 
 def circular_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -78,7 +93,8 @@ def phase_from_contact_starts(num_frames: int, right_starts: np.ndarray, left_st
     return np.mod(out, 1.0)
 
 
-def step_starts(onset_TxF: np.ndarray, toe_heights_TxF: np.ndarray, min_lift: float) -> list[np.ndarray]:
+def step_starts(onset_TxF: np.ndarray, toe_heights_TxF: np.ndarray, min_lift: float,
+                merge_frames: int = 0) -> list[np.ndarray]:
     """Contact starts of each foot that are footsteps, as a list of frame arrays (one per foot).
 
     A contact start is a footstep unless the previous footstep (of either foot) was made by the
@@ -86,6 +102,14 @@ def step_starts(onset_TxF: np.ndarray, toe_heights_TxF: np.ndarray, min_lift: fl
     since its previous contact ended: a foot that pivots or slides and touches down again, or a
     capture glitch that breaks a contact, is not a new step. Hops (the same foot twice, lifted
     in between) are kept.
+
+    Contact starts each at most ``merge_frames`` frames after the one before (0: in the same
+    frame) are one landing of both feet, and give one footstep, so footsteps are more than
+    ``merge_frames`` frames apart: of the starts that are footsteps by the rule above, the one of
+    the foot that did not make the previous footstep, else (no previous footstep) the one lifted
+    higher before it landed, then the one of the foot that does not make the next landing, then
+    the earlier one. Every test is the same for both feet, so swapping the feet (mirroring) swaps
+    the result (unless all of them tie).
     """
     onset = np.asarray(onset_TxF, dtype=bool)
     events = []  # (frame, foot, lift)
@@ -98,11 +122,24 @@ def step_starts(onset_TxF: np.ndarray, toe_heights_TxF: np.ndarray, min_lift: fl
             lift = float(np.max(toe_heights_TxF[prev_end:s + 1, k]) - toe_heights_TxF[s, k])
             events.append((int(s), k, lift))
     events.sort()
+    groups, i = [], 0
+    while i < len(events):
+        j = i + 1  # a group: starts each at most merge_frames after the one before
+        while j < len(events) and events[j][0] - events[j - 1][0] <= merge_frames:
+            j += 1
+        groups.append(events[i:j])
+        i = j
     kept: list[tuple[int, int]] = []
-    for frame, foot, lift in events:
-        if kept and kept[-1][1] == foot and lift < min_lift:
-            continue
-        kept.append((frame, foot))
+    for g, group in enumerate(groups):
+        prev = kept[-1][1] if kept else None
+        steps = [e for e in group if not (e[1] == prev and e[2] < min_lift)]
+        if steps:
+            # alternating foot first, then the higher lift, then the foot that alternates with the next
+            # group if one foot makes it, then the earlier frame (the foot's index decides only if all tie)
+            next_feet = {e[1] for e in groups[g + 1]} if g + 1 < len(groups) else set()
+            after = next_feet.pop() if len(next_feet) == 1 else None
+            frame, foot, _ = min(steps, key=lambda e: (e[1] == prev, -e[2], e[1] == after, e[0]))
+            kept.append((frame, foot))
     return [np.array([f for f, k in kept if k == foot], dtype=np.int64) for foot in range(onset.shape[1])]
 
 
@@ -111,7 +148,8 @@ def footsteps(motion: Motion, *, contact_moment: str = DEFAULT_CONTACT_MOMENT,
               speed_threshold: float | None = DEFAULT_SPEED_THRESHOLD_M_S,
               release_speed: float | None = DEFAULT_RELEASE_SPEED_M_S,
               max_gap: float = DEFAULT_MAX_GAP_S, min_duration: float = DEFAULT_MIN_DURATION_S,
-              min_lift: float = DEFAULT_MIN_LIFT_M,
+              min_lift: float = DEFAULT_MIN_LIFT_M, merge_window: float = DEFAULT_MERGE_WINDOW_S,
+              contact_rule: str = contacts_lib.DEFAULT_CONTACT_RULE,
               units_per_meter: float | None = None, feet: contacts_lib.FootJoints | None = None,
               positions_TxJx3: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Frames where footsteps start, ``(left, right)``; the events :func:`global_phase` uses.
@@ -132,16 +170,22 @@ def footsteps(motion: Motion, *, contact_moment: str = DEFAULT_CONTACT_MOMENT,
         capture) is one contact, and contacts shorter than ``min_duration`` (a toe scuffing a
         stair edge) are ignored.
       min_lift: metres; see :func:`step_starts`.
+      merge_window: seconds; contact starts this close are one landing of both feet, one footstep
+        (:func:`step_starts`; at least :data:`MIN_MERGE_FRAMES` frames; 0: only starts in one frame).
+      contact_rule: how thresholds in metres meet the skeleton's units and size and the frame rate:
+        ``"scaled"`` (default) or the paper's ``"paper2022"`` (see :mod:`jaxstyle.labels.contacts`).
       units_per_meter, feet, positions_TxJx3: see :func:`jaxstyle.labels.contacts.foot_contacts`.
     """
     feet = feet or contacts_lib.FootJoints.find(motion)
-    upm = contacts_lib.estimate_units_per_meter(motion) if units_per_meter is None else float(units_per_meter)
+    upm = (contacts_lib.contact_units_per_meter(motion, contact_rule, feet) if units_per_meter is None
+           else float(units_per_meter))
     pos = kinematics.global_positions(motion) if positions_TxJx3 is None else positions_TxJx3
     fc = contacts_lib.foot_contacts(motion, height_threshold=height_threshold, speed_threshold=speed_threshold,
                                     release_speed=release_speed, units_per_meter=upm, max_gap=max_gap,
-                                    min_duration=min_duration, feet=feet, positions_TxJx3=pos)
+                                    min_duration=min_duration, feet=feet, positions_TxJx3=pos, rule=contact_rule)
     toe_heights = pos[:, list(feet.toes), kinematics.UP_AXIS]
-    left, right = step_starts(fc.moment(contact_moment), toe_heights, min_lift * upm)
+    merge_frames = max(int(round(merge_window * motion.fps)), MIN_MERGE_FRAMES) if merge_window > 0 else 0
+    left, right = step_starts(fc.moment(contact_moment), toe_heights, min_lift * upm, merge_frames)
     return left, right
 
 

@@ -35,6 +35,8 @@ class Motion:
       end_site_parents: ``(E,)`` the joint each ``End Site`` hangs from.
       end_site_offsets: ``(E, 3)`` the end sites' offsets.
       source: where the motion came from (a file path), used in error messages.
+      joint_map: a :class:`jaxstyle.motion.skeleton.JointMap` (role -> joints) for a skeleton whose
+        feet, hips, shoulders or hands are not found by name; the finders and mirroring use it.
     """
 
     names: tuple[str, ...]
@@ -47,6 +49,7 @@ class Motion:
     end_site_parents: np.ndarray
     end_site_offsets: np.ndarray
     source: str | None = None
+    joint_map: object | None = None  # jaxstyle.motion.skeleton.JointMap (kept untyped: skeleton imports clip's layer)
 
     def __post_init__(self):
         j = len(self.names)

@@ -136,7 +136,8 @@ def facing_directions(motion: Motion, *, hips: tuple[str, str] | None = None,
     axis projected to the ground, so the result is always finite and unit length.
     """
     if hips is None or shoulders is None:
-        found_hips, found_shoulders = skeleton.find_hips_and_shoulders(motion.names, motion.source)
+        found_hips, found_shoulders = skeleton.find_hips_and_shoulders(motion.names, motion.source,
+                                                                            motion.joint_map)
         hips = hips or found_hips
         shoulders = shoulders or found_shoulders
     pos = global_positions(motion) if positions_TxJx3 is None else positions_TxJx3

@@ -94,17 +94,20 @@ def mirror(motion: Motion, axis: str = "x", pairs: np.ndarray | None = None) -> 
     identity.
 
     Args:
-      pairs: counterpart of each joint; found from the joint names when omitted
-        (:func:`jaxstyle.motion.skeleton.mirror_pairs`).
+      pairs: counterpart of each joint; found from the joint names (and the motion's
+        ``joint_map``) when omitted (:func:`jaxstyle.motion.skeleton.mirror_pairs`).
     """
     if pairs is None:
-        pairs = skeleton.mirror_pairs(motion.names, motion.source)
+        pairs = skeleton.mirror_pairs(motion.names, motion.source, motion.joint_map)
     pairs = np.asarray(pairs)
     if pairs.shape != (motion.num_joints,):
         raise MotionDataError(f"pairs must have shape ({motion.num_joints},), got {pairs.shape}", motion.source)
     if np.any(motion.parents[pairs] != np.where(motion.parents < 0, -1, pairs[motion.parents])):
-        raise MotionDataError("left/right pairs are not consistent with the hierarchy "
-                              "(a joint's counterpart must hang from its parent's counterpart)", motion.source)
+        bad = [motion.names[j] for j in np.flatnonzero(
+            motion.parents[pairs] != np.where(motion.parents < 0, -1, pairs[motion.parents]))]
+        raise MotionDataError("left/right pairs are not consistent with the hierarchy (a joint's counterpart must "
+                              f"hang from its parent's counterpart; not so for {', '.join(bad[:6])}); name the pairs "
+                              "the names do not say in a joint map (--joint-map FILE)", motion.source)
     refl = -_axis_vector(axis)  # diagonal of M: -1 on the axis, +1 elsewhere
     refl = np.where(refl == 0, 1.0, refl)
     # A reflection conjugates rotations: the axis (a pseudovector) maps to -M v.
