@@ -112,3 +112,61 @@ def test_real_motion_metrics_are_plausible(clip):
     glide[:, :, 2] += upm * np.arange(len(g_pos))[:, None] / 60.0
     slid = metrics.positions_foot_stats(glide, m, 60.0, floor, units_per_meter=upm)
     assert slid.skating > real.skating + 0.5
+
+
+@pytest.fixture(scope="module")
+def tiny_walker(mocap):
+    """A tiny PFNN (hidden 64, rank 4, contact outputs) trained briefly on Neutral walking and
+    idling: 20 s each of FW and ID."""
+    import warnings
+
+    from jaxstyle.data import datasets
+    from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, train, with_contacts
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        specs = [ClipSpec(str(mocap / f"100style/Neutral/Neutral_{g}.bvh"), "Neutral", 0, 1200) for g in ("FW", "ID")]
+        dataset = with_contacts(datasets.build_pfnn_dataset(specs, skip_short=True))
+    num_joints = (dataset.inputs.shape[1] - 48) // 6
+    layout = js.PFNNLayout(num_joints, contacts=True)
+    assert dataset.outputs.shape[1] == layout.output_size
+    model = pfnn.PFNNConfig(input_size=layout.input_size, hidden_size=64, output_size=layout.output_size, rank=4)
+    state = train(data_from_dataset(dataset), TrainConfig(model=model, epochs=6, dropout_rate=0.1), None,
+                  progress=False)
+    return state["params"], dataset, load_clip(specs[0], fps=60.0)
+
+
+def test_stop_and_go_stops_and_starts_again(tiny_walker):
+    """A trained tiny model on stop_and_go (2 s walk, 1 s stand): root speed below 0.1 m/s within
+    0.5 s of each stop command, walking again after it, and near the path at the end."""
+    from jaxstyle.control import paths
+
+    params, dataset, skeleton = tiny_walker
+    upm = js.estimate_units_per_meter(skeleton)
+    speed = 1.0
+    sig = paths.stop_and_go(6.0, speed, units_per_meter=upm)
+    row = controller.start_row(dataset.inputs, speed, units_per_meter=upm)
+    state = controller.initial_state(dataset.inputs[row], float(dataset.phases[row, 0]), skeleton.num_joints)
+    x_norm, y_norm = dataset.normalisers()
+    out = controller.rollout(params, None, x_norm, y_norm, state, controller.signal_controls(sig))
+    origin = np.asarray(out.origin)
+    assert np.isfinite(origin).all()
+    stops = metrics.stop_times(origin, sig.velocity, 60.0, units_per_meter=upm)
+    assert len(stops) == 2 and np.all(stops <= 0.5), stops
+    speed_t = metrics.ground_speed(origin, 60.0, units_per_meter=upm)
+    assert speed_t[int(3.5 * 60):int(4.5 * 60)].mean() > 0.5 * speed  # it walks again
+    # the benchmark's measures of the same rollout: the exported skeleton follows the same root path
+    # (the applied root motion is what the outputs record) with exact bones, and the IK uses the
+    # network's own heel and toe contacts
+    from jaxstyle.output import quality
+
+    assert js.data.pfnn_features.output_contacts(np.asarray(out.outputs), skeleton.num_joints).shape == (360, 4)
+    row = quality.measure(jax.tree.map(np.asarray, out), skeleton, sig, units_per_meter=upm)
+    assert row["bone_error_bvh_max"] < 1e-9 and row["stop_time_s"] <= 0.5
+    decoded_root = js.global_positions(js.decode_pfnn(np.asarray(out.outputs), skeleton)[0])[:, 0, [0, 2]]
+    np.testing.assert_allclose(decoded_root, np.asarray(out.positions)[:, 0, [0, 2]], atol=0.05 * upm)
+    # open loop (no stand amount, no following) the same model does not stop within 0.5 s
+    open_loop = controller.rollout(params, None, x_norm, y_norm, state,
+                                   controller.Controls(*controller.signal_controls(sig, follow_seconds=None)[:2]))
+    late = metrics.stop_times(np.asarray(open_loop.origin), sig.velocity, 60.0, units_per_meter=upm)
+    assert not np.all(late <= 0.5), late

@@ -224,3 +224,40 @@ def test_fix_foot_sliding_on_a_real_walk(mocap):
     dots = np.abs(np.sum(g_rot0[:, ankles] * g_rot1[:, ankles], axis=-1))
     np.testing.assert_allclose(dots, 1.0, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(fixed.rotations, axis=-1), 1.0, atol=1e-12)
+
+
+def test_heel_and_toe_stay_planted_and_blend_smoothly():
+    """(T, 4) heel and toe labels: the heel is down for frames 5-24, the toe for 10-29 (the heel
+    rolls off first). With ``toe_roll``, while down each stays within 1 mm of where it was held, although the hips
+    move on at 0.3 m/s; released, a foot catches up the 10 cm it was held back over the 10 blend
+    frames (at most 2.5 cm a frame, where a pop would move it 10 cm at once); bones keep their
+    lengths."""
+    m = _standing(60)
+    labels = np.zeros((60, 4))
+    labels[5:25, :2] = 1.0   # heels
+    labels[10:30, 2:] = 1.0  # toes
+    fixed = footik.fix_foot_sliding(m, labels, blend_frames=10, toe_roll=True)
+    before, after = js.global_positions(m), js.global_positions(fixed)
+    for ankle, toe in ((6, 7), (10, 11)):
+        np.testing.assert_allclose(after[5:25, ankle], np.broadcast_to(after[5, ankle], (20, 3)), atol=0.1)
+        np.testing.assert_allclose(after[5, ankle], before[5, ankle], atol=1e-9)
+        np.testing.assert_allclose(after[10:30, toe], np.broadcast_to(after[10, toe], (20, 3)), atol=0.1)
+        for j in (ankle, toe):
+            step = np.linalg.norm(np.diff(after[:, j], axis=0), axis=-1)
+            assert step.max() < 2.5, step.max()
+        np.testing.assert_array_equal(after[:5, toe], before[:5, toe])
+        np.testing.assert_array_equal(after[41:, toe], before[41:, toe])
+    child = np.flatnonzero(PARENTS >= 0)
+    lengths = np.linalg.norm(after[:, child] - after[:, PARENTS[child]], axis=-1)
+    np.testing.assert_allclose(lengths, np.broadcast_to(np.linalg.norm(OFFSETS[child], axis=-1), lengths.shape),
+                               atol=1e-9)
+    # without the roll, a toe is held only while its heel is down too (frames 10-24), then released
+    flat = js.global_positions(footik.fix_foot_sliding(m, labels, blend_frames=10))
+    for ankle, toe in ((6, 7), (10, 11)):
+        np.testing.assert_allclose(flat[5:25, ankle], np.broadcast_to(flat[5, ankle], (20, 3)), atol=0.1)
+        np.testing.assert_allclose(flat[10:25, toe], np.broadcast_to(flat[10, toe], (15, 3)), atol=0.1)
+        assert np.linalg.norm(flat[29, toe] - flat[10, toe]) > 1.0
+    # the ankle-only fix (per-foot labels) leaves the toes sliding with the hips
+    ankle_only = js.global_positions(footik.fix_foot_sliding(m, labels[:, :2], blend_frames=10))
+    assert np.linalg.norm(ankle_only[24, 7] - ankle_only[10, 7]) < 1.0  # heel held: toe held too while flat
+    assert np.linalg.norm(ankle_only[29, 7] - ankle_only[25, 7]) > 1.0  # heel released: the toe slides on

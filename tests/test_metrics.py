@@ -217,3 +217,42 @@ def test_bad_shapes_name_the_argument():
     nan[3, 2, 1] = np.nan
     with pytest.raises(ValueError, match="positions_TxJx3 contains NaN"):
         metrics.motion_quality(nan, m, FPS, units_per_meter=UPM)
+
+
+# --- the benchmark's figures (jaxstyle.output.quality) ---
+
+def test_stop_times_count_from_each_stop_command():
+    """A root that walks at 1 m/s for 60 frames, then decelerates linearly to 0 over 30 frames, and
+    walks again from frame 120: one stop, reached when the trailing 10-frame mean speed falls below
+    0.1 m/s (a numpy loop as the reference)."""
+    v_cmd = np.zeros((180, 2))
+    v_cmd[:60, 1] = UPM
+    v_cmd[120:, 1] = UPM
+    speed = np.concatenate([np.full(60, 1.0), np.linspace(1.0, 0.0, 30), np.zeros(30), np.full(60, 1.0)])
+    origin = np.zeros((180, 2))
+    origin[1:, 1] = np.cumsum(speed[1:]) * UPM / FPS
+    got = metrics.stop_times(origin, v_cmd, FPS, units_per_meter=UPM)
+    s = metrics.ground_speed(origin, FPS, units_per_meter=UPM)
+    np.testing.assert_allclose(s[1:], speed[1:], atol=1e-9)
+    first = next(t for t in range(60, 120) if np.mean(s[max(0, t - 9):t + 1]) < 0.1)
+    np.testing.assert_allclose(got, [(first - 60) / FPS])
+    walking = np.stack([np.zeros(180), np.arange(180) * UPM / FPS], axis=1)  # never slows down
+    assert np.isnan(metrics.stop_times(walking, v_cmd, FPS, units_per_meter=UPM)).all()
+
+
+def test_heading_error_wraps_and_joint_difference_is_in_metres():
+    yaw = np.array([0.0, np.pi - 0.1, 0.2])
+    path = np.array([2 * np.pi, -np.pi + 0.1, 0.0])
+    np.testing.assert_allclose(metrics.heading_error_deg(yaw, path), np.degrees((0.0 + 0.2 + 0.2) / 3))
+    a = np.zeros((3, 2, 3))
+    b = a.copy()
+    b[1, 1] = [3.0, 4.0, 0.0]
+    assert metrics.max_joint_difference_m(a, b, units_per_meter=UPM) == pytest.approx(0.05)
+
+
+def test_foot_jerk_is_the_ankles_third_difference():
+    m = synthetic_skeleton(20)
+    pos = js.global_positions(m)
+    pos[:, 6, 0] += 0.5 * (np.arange(20) / FPS) ** 3 * UPM  # left ankle: x = t^3 / 2 m, jerk 3 m/s^3
+    got = metrics.foot_jerk(pos, m, FPS, units_per_meter=UPM)
+    np.testing.assert_allclose(got, 3.0 / 2, rtol=1e-6)  # the mean over the two ankles

@@ -97,3 +97,34 @@ def test_too_short_and_wrong_shapes(mocap):
         pf.encode_pfnn(motion, np.zeros(3))
     with pytest.raises(ValueError, match="outputs must have shape"):
         pf.decode_pfnn(np.zeros((5, 399)), motion)
+
+
+def test_contact_outputs_round_trip_through_the_layout(mocap):
+    """The optional contact outputs: appended after the paper's 400 values (every other slice
+    unchanged), equal to the contact detector's labels of the predicted frame, read back by
+    output_contacts, and ignored by the decoder."""
+    motion = js.resample(js.read_bvh(mocap / "100style/Neutral/Neutral_FW.bvh").frames(0, 400), 60)
+    phase = js.global_phase(motion)
+    plain, with_c = pf.PFNNLayout(motion.num_joints), pf.PFNNLayout(motion.num_joints, contacts=True)
+    assert with_c.output_size == plain.output_size + 4
+    assert {k: v for k, v in with_c.output_groups.items() if k != "foot_contact"} == plain.output_groups
+    assert with_c.output_groups["foot_contact"] == slice(plain.output_size, plain.output_size + 4)
+    x0, y0, t0 = pf.encode_pfnn(motion, phase)
+    x, y, t = pf.encode_pfnn(motion, phase, contacts=True)
+    np.testing.assert_array_equal(x, x0)
+    np.testing.assert_array_equal(t, t0)
+    np.testing.assert_array_equal(y[:, :plain.output_size], y0)
+    c = js.foot_contacts(motion)
+    want = np.concatenate([c.heel, c.toe], axis=1)[t + 1].astype(float)
+    assert 0.1 < want.mean() < 0.9  # a walk: feet both on and off the floor
+    np.testing.assert_array_equal(pf.output_contacts(y, motion.num_joints), want)
+    assert pf.output_contacts(y0, motion.num_joints) is None
+    assert pf.PFNNLayout.from_output_size(motion.num_joints, y.shape[1]) == with_c
+    a, _ = pf.decode_pfnn(y, motion)
+    b, _ = pf.decode_pfnn(y0, motion)
+    np.testing.assert_array_equal(a.rotations, b.rotations)
+    np.testing.assert_array_equal(a.local_positions, b.local_positions)
+    with pytest.raises(ValueError, match="contacts must have shape"):
+        pf.encode_pfnn(motion, phase, contacts=np.zeros((5, 4)))
+    with pytest.raises(ValueError, match="fit no PFNN layout"):
+        pf.PFNNLayout.from_output_size(motion.num_joints, y.shape[1] + 1)

@@ -95,14 +95,23 @@ def assemble_input(state: RolloutState, controls_t: tuple[jax.Array, jax.Array],
     return jnp.concatenate([traj, state.joint_pos, state.joint_vel])
 
 
-def advance(state: RolloutState, y: jax.Array, num_joints: int) -> tuple[RolloutState, Rollout]:
+def advance(state: RolloutState, y: jax.Array, num_joints: int, stand=0.0) -> tuple[RolloutState, Rollout]:
     """Move the character by one de-normalised output ``y (28 + 12J,)``: the next state and the
-    generated frame."""
+    generated frame.
+
+    ``stand`` in ``[0, 1]`` (:func:`jaxstyle.control.loop.stand_amount`): how much the user asks
+    to stand still. As in the PFNN demo (Holden et al. 2017's runtime, which the 2018 paper
+    reuses), the root's translation and turn are scaled by ``m = (1 - stand) ** 0.25`` and the
+    phase advance by ``0.1 + 0.9 m``: a network whose training data have few clean stops drifts
+    on at a few cm/s after a stop command otherwise. The frame's recorded ``outputs`` hold the
+    root motion and phase change as applied (scaled, the phase change clipped at 0)."""
     origin, yaw = state.hist_xz[-1], state.hist_yaw[-1]
-    gx, gz = rotate_xz(y[0], y[1], yaw)
+    move = jnp.power(jnp.clip(1.0 - stand, 0.0, 1.0), 0.25)
+    gx, gz = rotate_xz(move * y[0], move * y[1], yaw)
     new_origin = origin + jnp.stack([gx, gz])
-    new_yaw = yaw + y[2]
-    new_phase = jnp.mod(state.phase + jnp.maximum(y[3], 0.0), 1.0)
+    new_yaw = yaw + move * y[2]
+    dphase = (0.1 + 0.9 * move) * jnp.maximum(y[3], 0.0)
+    new_phase = jnp.mod(state.phase + dphase, 1.0)
     g = PFNNLayout(num_joints).output_groups
     local = y[g["joint_position"]].reshape(num_joints, 3)
     wx, wz = rotate_xz(local[:, 0], local[:, 2], new_yaw)
@@ -111,7 +120,10 @@ def advance(state: RolloutState, y: jax.Array, num_joints: int) -> tuple[Rollout
     new_state = RolloutState(jnp.concatenate([state.hist_xz[1:], new_origin[None]]),
                              jnp.concatenate([state.hist_yaw[1:], new_yaw[None]]), new_phase,
                              y[g["joint_position"]], y[g["joint_velocity"]], traj)
-    return new_state, Rollout(positions, new_origin, new_yaw, new_phase, y)
+    # the recorded outputs carry the root motion and phase change actually applied, so that
+    # decode_pfnn (the BVH export) reproduces this rollout's root path exactly
+    applied = jnp.concatenate([move * y[:3], dphase[None], y[4:]])
+    return new_state, Rollout(positions, new_origin, new_yaw, new_phase, applied)
 
 
 def _step(params, adapter, x_norm, y_norm, num_joints, blend_bias, table, state: RolloutState, control):
@@ -120,7 +132,8 @@ def _step(params, adapter, x_norm, y_norm, num_joints, blend_bias, table, state:
         y_n = pfnn.pfnn_apply_table(params, x_n, state.phase, adapter_table=adapter)[0]
     else:
         y_n = pfnn.pfnn_apply(params, x_n, state.phase[None], adapter=adapter)[0]
-    return advance(state, y_n * y_norm[1] + y_norm[0], num_joints)
+    stand = control[2] if len(control) > 2 else 0.0
+    return advance(state, y_n * y_norm[1] + y_norm[0], num_joints, stand)
 
 
 def model_step(params, x_norm, y_norm, num_joints: int, blend_bias: float = 1.5, table: bool = False):

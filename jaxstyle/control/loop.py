@@ -35,12 +35,83 @@ SPACING = 10
 Step = Callable  # step(style, state, control) -> (state, frame)
 
 
+FOLLOW_SECONDS = 0.25
+"""Default time constant (s) of the path-following law: a position error is closed over this time
+(:func:`follow_gains`)."""
+
+
 class Controls(NamedTuple):
     """Per frame ``t``: the user's path ``offsets (T, 6, 2)``, the ground displacement from frame
-    ``t`` to ``t + 10 k`` (k = 0 .. 5), global, and the desired facing yaw ``yaw (T, 6)`` there."""
+    ``t`` to ``t + 10 k`` (k = 0 .. 5), global, and the desired facing yaw ``yaw (T, 6)`` there.
+
+    Path following (optional): ``target (T, 2)`` is where the path wants the character's origin at
+    the start of frame ``t`` (global, file units) and ``gain (T, 6)`` how much of the position
+    error ``target - origin`` each future sample corrects (:func:`follow_gains`). Inside the loop
+    (:func:`steer`) sample ``k`` then aims at ``offsets[k] + gain[k] * (target - origin)``: the
+    character steers back toward where the path wants it. ``None`` (or zero gains): open loop, the
+    offsets are taken as they are, relative to wherever the character stands.
+
+    ``stand (T,)`` in ``[0, 1]``: how much the user asks the character to stand still (the PFNN
+    demo's ``gait_stand``; :func:`stand_amount`), which a controller may use to damp the root
+    motion and the phase (:func:`jaxstyle.control.controller.advance`)."""
 
     offsets: jax.Array
     yaw: jax.Array
+    target: jax.Array | None = None
+    gain: jax.Array | None = None
+    stand: jax.Array | None = None
+
+
+def follow_gains(follow_seconds: float | None) -> np.ndarray:
+    """``(6,)`` gains of the path-following law for the future samples ``k = 0 .. 5`` (``k / 6`` s
+    ahead, the 10-frame spacing at the networks' 60 fps): ``g_k = min(1, (k / 6) / follow_seconds)``.
+
+    The law is a time-indexed pursuit of the path's ideal positions (the runtimes of Holden et al.
+    2017 and of both papers only feed the user's velocity, which lets any error accumulate: 1-3 m
+    of drift in 8 s): the future trajectory handed to the network is the path's own displacement
+    plus a share of the current position error that grows linearly with the look-ahead time and
+    reaches the whole error ``follow_seconds`` ahead (the farthest samples then aim exactly at
+    the path's ideal positions, pure pursuit). For a character that tracks its future trajectory
+    this is a proportional controller on position with time constant ``follow_seconds``: the
+    error decays like ``exp(-t / follow_seconds)`` without overshoot
+    (``tests/test_path_following.py`` checks this on unicycle and point models). ``None`` or 0:
+    no correction (the open-loop behaviour)."""
+    if follow_seconds is None or follow_seconds == 0:
+        return np.zeros(FUTURE_SAMPLES)
+    if not np.isfinite(follow_seconds) or follow_seconds < 0:
+        raise ValueError(f"follow_seconds must be positive (or None for open loop), got {follow_seconds}")
+    return np.minimum(1.0, SPACING * np.arange(FUTURE_SAMPLES) / 60.0 / follow_seconds)
+
+
+def steer(origin_2: jax.Array, control) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """One frame's ``(offsets (6, 2), yaw (6,), stand ())`` for a character whose origin is
+    ``origin_2``: ``control`` is one row of :class:`Controls` (``(offsets, yaw)`` or all five
+    fields); with a target, each sample ``k`` adds ``gain[k]`` times the position error.
+    ``stand`` is 0 (walking) when the row has none."""
+    offsets, yaw = control[0], control[1]
+    stand = control[4] if len(control) > 4 and control[4] is not None else jnp.zeros((), offsets.dtype)
+    if len(control) >= 4 and control[2] is not None:
+        offsets = offsets + control[3][:, None] * (control[2] - origin_2)[None]
+    return offsets, yaw, stand
+
+
+STAND_LOOKAHEAD = 10
+"""Frames ahead over which :func:`stand_amount` averages the user's standing (1/6 s at 60 fps)."""
+
+
+def stand_amount(velocity_Tx2, fps: float = 60.0, *, relative: float = 0.1) -> np.ndarray:
+    """``(T,)`` in ``[0, 1]``: the share of the next :data:`STAND_LOOKAHEAD` frames (scaled to ``fps``)
+    in which the user's path stands still (speed below ``relative`` times the path's top speed;
+    a path that never moves stands throughout). The PFNN demo's ``gait_stand`` input (Holden et
+    al. 2017), which the 2018 feature layout has no gait inputs for, so it is read off the path."""
+    v = np.asarray(velocity_Tx2, dtype=np.float64)
+    speed = np.linalg.norm(v, axis=1)
+    top = speed.max() if len(speed) else 0.0
+    still = (speed <= relative * top).astype(np.float64)
+    n = max(int(round(STAND_LOOKAHEAD * fps / 60.0)), 1)
+    padded = np.concatenate([still, np.repeat(still[-1:], n)])
+    c = np.concatenate([[0.0], np.cumsum(padded)])
+    return (c[n:n + len(v)] - c[:len(v)]) / n
 
 
 def rotate_xz(x, z, a):
@@ -50,9 +121,12 @@ def rotate_xz(x, z, a):
     return x * c + z * s, -x * s + z * c
 
 
-def path_controls(velocity_Tx2, yaw_T, fps: float = 60.0) -> Controls:
+def path_controls(velocity_Tx2, yaw_T, fps: float = 60.0, *, follow_seconds: float | None = FOLLOW_SECONDS
+                  ) -> Controls:
     """:class:`Controls` from a desired ground velocity (units per second, global x and z) and
-    facing yaw (radians) per frame. Past the last frame the last values hold."""
+    facing yaw (radians) per frame. Past the last frame the last values hold. The path's ideal
+    positions (the integrated velocity from the origin) are the targets of the path-following law
+    with time constant ``follow_seconds`` (:func:`follow_gains`; ``None``: open loop)."""
     v = np.asarray(velocity_Tx2, dtype=np.float64)
     yaw = np.asarray(yaw_T, dtype=np.float64)
     if v.ndim != 2 or v.shape[1] != 2 or yaw.shape != (len(v),):
@@ -65,21 +139,26 @@ def path_controls(velocity_Tx2, yaw_T, fps: float = 60.0) -> Controls:
     disp = np.concatenate([np.zeros((1, 2)), np.cumsum(v / fps, axis=0)])  # displacement before frame i
     t = np.arange(len(velocity_Tx2))[:, None] + SPACING * np.arange(FUTURE_SAMPLES)[None]
     offsets = disp[t] - disp[t[:, :1]]
-    return Controls(jnp.asarray(offsets, jnp.float32), jnp.asarray(yaw[t], jnp.float32))
+    n = len(velocity_Tx2)
+    gain = np.broadcast_to(follow_gains(follow_seconds), (n, FUTURE_SAMPLES))
+    return Controls(jnp.asarray(offsets, jnp.float32), jnp.asarray(yaw[t], jnp.float32),
+                    jnp.asarray(disp[:n], jnp.float32), jnp.asarray(gain, jnp.float32),
+                    jnp.asarray(stand_amount(velocity_Tx2, fps), jnp.float32))
 
 
-def signal_controls(signal: PathSignal) -> Controls:
-    """:class:`Controls` of a :class:`jaxstyle.control.paths.PathSignal` (velocity and facing per frame)."""
-    return path_controls(signal.velocity, signal.yaw, signal.fps)
+def signal_controls(signal: PathSignal, *, follow_seconds: float | None = FOLLOW_SECONDS) -> Controls:
+    """:class:`Controls` of a :class:`jaxstyle.control.paths.PathSignal` (velocity and facing per
+    frame), following its positions (:func:`follow_gains`; ``None``: open loop)."""
+    return path_controls(signal.velocity, signal.yaw, signal.fps, follow_seconds=follow_seconds)
 
 
 def turning_path(num_frames: int, speed: float, turn_rate: float, fps: float = 60.0,
-                 start_yaw: float = 0.0) -> Controls:
+                 start_yaw: float = 0.0, *, follow_seconds: float | None = FOLLOW_SECONDS) -> Controls:
     """Walk at ``speed`` (units/s) while turning at ``turn_rate`` (radians/s; 0 is a straight
-    line), facing the direction of travel."""
+    line), facing the direction of travel (followed as :func:`path_controls`)."""
     yaw = start_yaw + turn_rate * np.arange(num_frames) / fps
     velocity = speed * np.stack([np.sin(yaw), np.cos(yaw)], axis=-1)
-    return path_controls(velocity, yaw, fps)
+    return path_controls(velocity, yaw, fps, follow_seconds=follow_seconds)
 
 
 def start_row(x_NxI: np.ndarray, speed: float, *, units_per_meter: float, rows: np.ndarray | None = None,
@@ -132,8 +211,8 @@ def trajectory_input(hist_xz: jax.Array, hist_yaw: jax.Array, future_4xF: jax.Ar
     x (12) | z (12) at offsets -60 .. 50, in the current frame. Past samples come from the
     character's own ground frames ``hist_xz (61, 2)``/``hist_yaw (61,)``; future samples are the
     previous prediction ``future (4, 6)`` blended with the user's path at this frame
-    (``(offsets (6, 2), yaw (6,))``, one row of :class:`Controls`)."""
-    offsets, user_yaw = controls_t
+    (``(offsets (6, 2), yaw (6,), ...)``, a row of :class:`Controls` after :func:`steer`)."""
+    offsets, user_yaw = controls_t[0], controls_t[1]
     origin, yaw = hist_xz[-1], hist_yaw[-1]
     # past samples, in the current frame
     past = slice(0, HISTORY - 1, SPACING)
@@ -157,8 +236,11 @@ def normaliser_arrays(norm: Normaliser | tuple) -> tuple[jax.Array, jax.Array]:
 
 def scan_frames(step: Step, style, state, controls: Controls):
     """Run ``step(style, state, control)`` over the ``T`` rows of ``controls`` (``lax.scan``); the
-    generated frames, stacked over ``T``. Call it inside ``jit``."""
-    _, frames = jax.lax.scan(lambda s, c: step(style, s, c), state, (controls.offsets, controls.yaw))
+    generated frames, stacked over ``T``. Call it inside ``jit``. ``state`` is any carry with the
+    ground history ``hist_xz`` of both controllers' states: each frame's control is steered from
+    the character's current origin toward the path (:func:`steer`) before ``step`` sees it."""
+    rows = tuple(controls)
+    _, frames = jax.lax.scan(lambda s, c: step(style, s, steer(s.hist_xz[-1], c)), state, rows)
     return frames
 
 
@@ -173,7 +255,8 @@ def scan_characters(step: Step, styles, states, controls: Controls, *, shared_st
 def live_step(step: Step, default_style):
     """A jitted ``f(state, control, style=default_style) -> (state, frame)`` for ONE frame, the
     runtime's call per displayed frame when a user steers live (``control`` is one row of
-    :class:`Controls`). ``step`` closes over the weights, which are compiled in as constants, as a
+    :class:`Controls`: ``(offsets, yaw)``, or all its fields to follow a path). ``step`` closes
+    over the weights, which are compiled in as constants, as a
     game runtime loads them once; the style stays an argument so it can be switched or blended live."""
-    jitted = jax.jit(lambda state, control, style: step(style, state, control))
+    jitted = jax.jit(lambda state, control, style: step(style, state, steer(state.hist_xz[-1], tuple(control))))
     return lambda state, control, style=default_style: jitted(state, control, style)

@@ -153,12 +153,20 @@ def waypoints(points_Nx2, speed: float, *, fps: float = 60.0, seconds: float | N
     return from_velocity(v * units_per_meter, fps, yaw)
 
 
+def _waypoint_path(seconds: float, speed: float, **kw) -> PathSignal:
+    """A zigzag polyline of 45-degree bends, sized so walking it at ``speed`` takes 7/8 of
+    ``seconds``, then standing: (0, 0), (0, a), (a, 2a), (a, 3a) metres."""
+    a = max(speed, 1e-3) * 7.0 / 8.0 * seconds / (2.0 + np.sqrt(2.0))
+    return waypoints(np.array([[0.0, 0.0], [0.0, a], [a, 2 * a], [a, 3 * a]]), max(speed, 1e-3), seconds=seconds, **kw)
+
+
 PATHS: dict[str, Callable[..., PathSignal]] = {
     "straight": lambda seconds, speed, **kw: straight(seconds, speed, **kw),
     "circle": lambda seconds, speed, **kw: circle(seconds, speed, radius=2.0, **kw),
     "zigzag": lambda seconds, speed, **kw: zigzag(seconds, speed, **kw),
     "stop_and_go": lambda seconds, speed, **kw: stop_and_go(seconds, speed, **kw),
     "speed_ramp": lambda seconds, speed, **kw: speed_ramp(seconds, 0.5 * speed, 1.5 * speed, **kw),
+    "waypoints": _waypoint_path,
 }
 """The named test paths of ``experiments/synthesize.py``: ``PATHS[name](seconds, speed, fps=...,
 units_per_meter=...)``."""

@@ -13,6 +13,12 @@ and the output ``Y_t`` (``28 + 12 J``; 400 for 31 joints) describes frame ``t + 
     trajectory x (6) | trajectory z (6) | direction x (6) | direction z (6)       samples t+1 .. t+51, in C_{t+1}
     joint positions | velocities | rotation forward (+Z) | rotation up (+Y) vectors  (3 J each), frame t+1, in C_{t+1}
 
+Optionally (``PFNNLayout(J, contacts=True)``, not in the paper) the output also carries four
+foot contact labels of frame ``t + 1`` at its end, ``heel L, heel R, toe L, toe R`` (the ankle and
+toe joints of :class:`jaxstyle.FootJoints`, labelled by :func:`jaxstyle.foot_contacts`, 2022
+section 4.1.2), so the network predicts its own contacts for the foot IK as the 2022 networks do;
+every other slice is unchanged, so the default layout (and caches of it) reads as before.
+
 Trajectory samples are the character frame origins and facing directions. Velocities are per
 frame (the difference to the previous frame), as in the reference code. The sample spacing is
 10 frames at 60 fps, i.e. 1/6 s; at other frame rates it is scaled to stay 1/6 s. A frame has
@@ -30,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from jaxstyle.errors import MotionDataError
+from jaxstyle.labels.contacts import foot_contacts
 from jaxstyle.motion import Motion, kinematics, quat
 from jaxstyle.motion.character_frame import (
     CharacterFrames,
@@ -47,6 +54,7 @@ from jaxstyle.motion.character_frame import (
 PAST_SAMPLES = 6
 FUTURE_SAMPLES = 6  # including the current one: t, t+10, ..., t+50
 SAMPLE_SECONDS = 10.0 / 60.0
+NUM_CONTACTS = 4  # heel L, heel R, toe L, toe R
 
 
 @dataclass(frozen=True)
@@ -58,6 +66,18 @@ class PFNNLayout:
     """
 
     num_joints: int
+    contacts: bool = False
+
+    @classmethod
+    def from_output_size(cls, num_joints: int, output_size: int) -> "PFNNLayout":
+        """The layout of ``num_joints`` whose outputs have ``output_size`` values (with or without
+        the contact labels); a clear error for any other size."""
+        for contacts in (False, True):
+            layout = cls(num_joints, contacts)
+            if layout.output_size == output_size:
+                return layout
+        raise ValueError(f"{output_size} outputs fit no PFNN layout of {num_joints} joints "
+                         f"({cls(num_joints).output_size}, or {cls(num_joints, True).output_size} with contacts)")
 
     @property
     def input_size(self) -> int:
@@ -65,7 +85,7 @@ class PFNNLayout:
 
     @property
     def output_size(self) -> int:
-        return 4 + 4 * FUTURE_SAMPLES + 12 * self.num_joints
+        return 4 + 4 * FUTURE_SAMPLES + 12 * self.num_joints + (NUM_CONTACTS if self.contacts else 0)
 
     @property
     def input_groups(self) -> dict[str, slice]:
@@ -77,10 +97,20 @@ class PFNNLayout:
     def output_groups(self) -> dict[str, slice]:
         f, j3 = FUTURE_SAMPLES, 3 * self.num_joints
         o = 4 + 4 * f
-        return {"root_velocity": slice(0, 2), "root_angular_velocity": slice(2, 3), "phase_change": slice(3, 4),
-                "trajectory_position": slice(4, 4 + 2 * f), "trajectory_direction": slice(4 + 2 * f, o),
-                "joint_position": slice(o, o + j3), "joint_velocity": slice(o + j3, o + 2 * j3),
-                "joint_forward": slice(o + 2 * j3, o + 3 * j3), "joint_up": slice(o + 3 * j3, o + 4 * j3)}
+        groups = {"root_velocity": slice(0, 2), "root_angular_velocity": slice(2, 3), "phase_change": slice(3, 4),
+                  "trajectory_position": slice(4, 4 + 2 * f), "trajectory_direction": slice(4 + 2 * f, o),
+                  "joint_position": slice(o, o + j3), "joint_velocity": slice(o + j3, o + 2 * j3),
+                  "joint_forward": slice(o + 2 * j3, o + 3 * j3), "joint_up": slice(o + 3 * j3, o + 4 * j3)}
+        if self.contacts:
+            groups["foot_contact"] = slice(o + 4 * j3, o + 4 * j3 + NUM_CONTACTS)
+        return groups
+
+
+def contact_labels(motion: Motion) -> np.ndarray:
+    """``(T, 4)`` float foot contact labels ``heel L, heel R, toe L, toe R`` of a clip
+    (:func:`jaxstyle.foot_contacts`, 2022 section 4.1.2), the optional outputs of the layout."""
+    c = foot_contacts(motion)
+    return np.concatenate([c.heel, c.toe], axis=1).astype(np.float64)
 
 
 def sample_step(fps: float) -> int:
@@ -94,14 +124,16 @@ def valid_frames(num_frames: int, fps: float) -> np.ndarray:
     return np.arange(PAST_SAMPLES * s, num_frames - (FUTURE_SAMPLES - 1) * s - 1)
 
 
-def encode_pfnn(motion: Motion, phase: np.ndarray, *, frames: CharacterFrames | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def encode_pfnn(motion: Motion, phase: np.ndarray, *, frames: CharacterFrames | None = None,
+                contacts: np.ndarray | bool | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(X, Y, t)``: PFNN inputs ``(N, 48 + 6J)``, outputs ``(N, 28 + 12J)`` and their frames ``(N,)``.
 
     Args:
       motion: a clip (any skeleton; 60 fps gives the paper's 10-frame sample spacing).
       phase: ``(T,)`` global phase in cycles (e.g. :func:`jaxstyle.labels.phase.global_phase`).
       frames: character frames, computed with :func:`character_frames` when omitted.
+      contacts: ``(T, 4)`` foot contact labels to append to the outputs (the layout's
+        ``contacts=True`` option), or ``True`` to label them with :func:`contact_labels`.
     """
     phase = np.asarray(phase, dtype=np.float64)
     if phase.shape != (motion.num_frames,):
@@ -131,6 +163,11 @@ def encode_pfnn(motion: Motion, phase: np.ndarray, *, frames: CharacterFrames | 
     rot_1 = rotations_to_local(g_rot[t1], frames, t1)
     y = np.concatenate([root_vel[:, [0, 2]], ang_vel[:, None], dphase[:, None], future, pos_1, vel_1,
                         quat.forward(rot_1).reshape(n, -1), quat.up(rot_1).reshape(n, -1)], axis=1)
+    if contacts is not None and contacts is not False:
+        labels = contact_labels(motion) if contacts is True else np.asarray(contacts, dtype=np.float64)
+        if labels.shape != (motion.num_frames, NUM_CONTACTS):
+            raise ValueError(f"contacts must have shape ({motion.num_frames}, {NUM_CONTACTS}), got {labels.shape}")
+        y = np.concatenate([y, labels[t1]], axis=1)
     if not (np.isfinite(x).all() and np.isfinite(y).all()):
         raise MotionDataError("PFNN features contain NaN or infinity", motion.source)
     return x, y, t
@@ -138,7 +175,9 @@ def encode_pfnn(motion: Motion, phase: np.ndarray, *, frames: CharacterFrames | 
 
 def decode_pfnn(outputs: np.ndarray, skeleton: Motion, *, origin: np.ndarray | None = None, yaw: float = 0.0,
                 phase: float = 0.0) -> tuple[Motion, np.ndarray]:
-    """A :class:`Motion` (and its ``(N,)`` phase) from a sequence of PFNN outputs ``(N, 28 + 12J)``.
+    """A :class:`Motion` (and its ``(N,)`` phase) from a sequence of PFNN outputs ``(N, 28 + 12J)``
+    (or ``(N, 32 + 12J)`` with the contact labels, which the motion does not need: see
+    :func:`output_contacts`).
 
     Output ``i`` describes frame ``i + 1`` relative to frame ``i``; the character starts at ground
     position ``origin`` with heading ``yaw`` (frame 0, which has no output, is not returned).
@@ -148,8 +187,9 @@ def decode_pfnn(outputs: np.ndarray, skeleton: Motion, *, origin: np.ndarray | N
     y = np.asarray(outputs, dtype=np.float64)
     num_joints = skeleton.num_joints
     layout = PFNNLayout(num_joints)
-    if y.ndim != 2 or y.shape[1] != layout.output_size:
-        raise ValueError(f"outputs must have shape (N, {layout.output_size}) for {num_joints} joints, got {y.shape}")
+    if y.ndim != 2 or y.shape[1] not in (layout.output_size, PFNNLayout(num_joints, True).output_size):
+        raise ValueError(f"outputs must have shape (N, {layout.output_size}) for {num_joints} joints "
+                         f"(or {PFNNLayout(num_joints, True).output_size} with contacts), got {y.shape}")
     g = layout.output_groups
     n = len(y)
     root_vel = np.zeros((n, 3))
@@ -168,3 +208,11 @@ def decode_pfnn(outputs: np.ndarray, skeleton: Motion, *, origin: np.ndarray | N
     phases = np.mod(phase + np.cumsum(y[:, 3]), 1.0)
     return kinematics.motion_from_global(skeleton, g_rot, g_pos[:, skeleton.parents < 0]), phases
 
+
+
+def output_contacts(outputs: np.ndarray, num_joints: int) -> np.ndarray | None:
+    """``(N, 4)`` predicted contact labels (heel L, heel R, toe L, toe R) of PFNN outputs with the
+    layout's contact option, ``None`` for the paper's layout."""
+    y = np.asarray(outputs)
+    layout = PFNNLayout.from_output_size(num_joints, y.shape[-1])
+    return y[..., layout.output_groups["foot_contact"]] if layout.contacts else None

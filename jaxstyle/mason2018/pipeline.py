@@ -48,13 +48,15 @@ from jaxstyle.data.folders import (  # noqa: F401  (re-exported: the pipeline's 
     folder_specs,
     split_styles,
     style_root,
+    user_clip_specs,
 )
 from jaxstyle.data.pfnn_features import PFNNLayout, valid_frames
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import fewshot, selection
-from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, finetune_adapter, train
+from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, finetune_adapter, train, with_contacts
 from jaxstyle.motion import Motion
 from jaxstyle.motion.bvh import frame_rate
+from jaxstyle.motion.skeleton import JointMap
 from jaxstyle.nn import pfnn
 from jaxstyle.output import synthesis
 from jaxstyle.output.synthesis import Character, SynthesisResult
@@ -64,41 +66,19 @@ from jaxstyle.train.scan import DEFAULT_RATES
 # --- data ---------------------------------------------------------------------------------------
 
 def fewshot_specs(root: Path, styles: Sequence[str], seconds: float,
-                  gaits: Sequence[str] | None = None) -> list[ClipSpec]:
+                  gaits: Sequence[str] | None = None, joint_map: JointMap | None = None) -> list[ClipSpec]:
     """One few-shot set per style and gait, named ``<Style>_<GAIT>``: ONE clip of ``seconds`` (plus
     the trajectory window the rows need) and its mirror for symmetric styles (2018 section 7)."""
     if seconds <= 0:
         raise PipelineError(f"few-shot seconds must be positive, got {seconds:g}")
     specs = []
-    for spec in clip_specs(root, styles, gaits):
+    for spec in clip_specs(root, styles, gaits, joint_map=joint_map):
         fps = frame_rate(spec.path)
         n = int(round(10 * fps))
         window = n - len(valid_frames(n, fps))  # frames the trajectory window costs a clip
         stop = spec.start + int(round(seconds * fps)) + window
         specs.append(dataclasses.replace(spec, style=f"{spec.style}_{spec.gait}",
                                          stop=stop if spec.stop is None else min(spec.stop, stop)))
-    return specs
-
-
-def user_clip_specs(clips: Sequence[str | os.PathLike], mirror: bool,
-                    seconds: tuple[float, float] | None = None) -> list[ClipSpec]:
-    """One new style per user BVH file, named by the file's stem, and its mirror when ``mirror``;
-    ``seconds`` = (start, end) keeps that range of each file."""
-    if seconds is not None and not 0 <= seconds[0] < seconds[1]:
-        raise PipelineError(f"clip range {seconds[0]:g} {seconds[1]:g}: need 0 <= START < END")
-    paths = [Path(c) for c in clips]
-    if len({p.stem for p in paths}) != len(paths):
-        raise PipelineError("two clip files share a name; each file's stem names its style")
-    specs = []
-    for path in paths:
-        if not path.is_file():
-            raise PipelineError(f"clip {path}: no such file")
-        start, stop = 0, None
-        if seconds is not None:
-            fps = frame_rate(path)
-            start, stop = int(round(seconds[0] * fps)), int(round(seconds[1] * fps))
-        copies = (False, True) if mirror else (False,)
-        specs += [ClipSpec(str(path), path.stem, start, stop, mirror=m) for m in copies]
     return specs
 
 
@@ -133,7 +113,8 @@ class BaseSettings:
     """What a base model was trained on and how: the style folder ``data`` (:func:`style_root`), its
     ``styles`` and ``gaits`` (``None``: the default of :func:`clip_specs`; clips cut to
     ``max_seconds`` if set), the network's ``hidden`` size, the CP
-    adapters' ``rank``, ``epochs`` (paper: 25, batch 32, Adam 1e-4, dropout 0.3) and ``seed``."""
+    adapters' ``rank``, ``epochs`` (paper: 25, batch 32, Adam 1e-4, dropout 0.3) and ``seed``;
+    ``joint_map`` for a skeleton whose joints are not found by name (``--joint-map``)."""
 
     data: str
     styles: tuple[str, ...]
@@ -143,6 +124,8 @@ class BaseSettings:
     epochs: int = 20
     max_seconds: float | None = None
     seed: int = 0
+    joint_map: JointMap | None = None
+    contacts: bool = False  # the 2018 layout's optional foot contact outputs (jaxstyle.data.pfnn_features)
 
     def __post_init__(self):
         for name in ("hidden", "rank", "epochs"):
@@ -152,11 +135,14 @@ class BaseSettings:
             raise PipelineError(f"max_seconds must be positive, got {self.max_seconds}")
 
     def to_json(self) -> dict:
-        return dataclasses.asdict(self)
+        d = dataclasses.asdict(self)
+        d["joint_map"] = None if self.joint_map is None else self.joint_map.to_json()
+        return d
 
     @classmethod
     def from_json(cls, d: dict) -> "BaseSettings":
         d = dict(d)
+        d["joint_map"] = JointMap.from_json(d.get("joint_map"))
         d["styles"] = tuple(d["styles"])
         d["gaits"] = None if d.get("gaits") is None else tuple(d["gaits"])
         return cls(**d)
@@ -200,9 +186,12 @@ def train_base(settings: BaseSettings, directory: str | os.PathLike, *, cache: s
             raise PipelineError(f"{directory} holds a base trained with other settings ({', '.join(changed)} differ); "
                                 "use another --run folder or delete that one")
     root = Path(settings.data)
-    dataset = build(clip_specs(root, settings.styles, settings.gaits, settings.max_seconds), cache, progress)
+    dataset = build(clip_specs(root, settings.styles, settings.gaits, settings.max_seconds, settings.joint_map), cache,
+                    progress)
+    if settings.contacts:
+        dataset = with_contacts(dataset)
     data = data_from_dataset(dataset)
-    layout = PFNNLayout((dataset.inputs.shape[1] - 48) // 6)
+    layout = PFNNLayout((dataset.inputs.shape[1] - 48) // 6, contacts=settings.contacts)
     model = pfnn.PFNNConfig(input_size=layout.input_size, output_size=layout.output_size,
                             hidden_size=settings.hidden, rank=settings.rank)
     config = TrainConfig(model=model, epochs=settings.epochs, half_mirrored=True, seed=settings.seed)
@@ -252,6 +241,8 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
     if epochs < 1 or not rates or any(not 0 <= r < 1 for r in rates):
         raise PipelineError(f"need epochs >= 1 and dropout rates in [0, 1), got {epochs} and {list(rates)}")
     shots = build(specs, cache)
+    if base.settings.contacts:
+        shots = with_contacts(shots, base.dataset)
     if shots.inputs.shape[1] != base.model.input_size:
         raise PipelineError(f"the few-shot clips give {shots.inputs.shape[1]} inputs but the base takes "
                             f"{base.model.input_size}: they need the base's skeleton ({base.skeleton.num_joints} "
@@ -261,7 +252,7 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
     result = selection.fewshot_sweep(base.params, base.normalisers, shots, skeleton or base.skeleton, config,
                                      progress=progress)
     paths = selection.write_report(result, directory, config)
-    meta = {"specs": [dataclasses.asdict(s) for s in specs], "rates": list(config.rates), "epochs": epochs,
+    meta = {"specs": [s.to_json() for s in specs], "rates": list(config.rates), "epochs": epochs,
             "styles": list(result.styles), "seconds": result.seconds}
     path = Path(directory) / "sweep.json"
     path.with_name("sweep.json.tmp").write_text(json_text(meta))
@@ -312,7 +303,9 @@ def load_sweep(directory: str | os.PathLike, base: Base, *, cache: str | os.Path
         if not (directory / name).is_file():
             raise PipelineError(f"no few-shot sweep in {directory} (no {name}): run `jaxstyle sweep --run RUN` first")
     meta = json.loads((directory / "sweep.json").read_text())
-    shots = build([ClipSpec(**s) for s in meta["specs"]], cache)
+    shots = build([ClipSpec.from_json(s) for s in meta["specs"]], cache)
+    if base.settings.contacts:
+        shots = with_contacts(shots, base.dataset)
     return json.loads((directory / "chosen_rates.json").read_text()), shots
 
 

@@ -58,6 +58,37 @@ class TrainData(NamedTuple):
     mirror_of: np.ndarray | None = None
 
 
+def with_contacts(dataset, base=None):
+    """``dataset`` with the optional foot contact outputs of the 2018 layout
+    (:class:`jaxstyle.data.pfnn_features.PFNNLayout` ``contacts=True``; not in the paper, whose
+    network predicts none): per row the labels of the frame it predicts (:func:`contact_labels`
+    of each clip, as loaded for the features), and their statistics appended to the output
+    normaliser (per-column mean, one standard deviation for the group, as the other groups);
+    with ``base`` (a dataset already with contacts) its statistics are reused. A dataset that
+    has them already is returned as it is."""
+    from jaxstyle.data.datasets import load_clip
+    from jaxstyle.data.pfnn_features import NUM_CONTACTS, PFNNLayout, contact_labels
+
+    num_joints = (dataset.inputs.shape[1] - 48) // 6
+    if PFNNLayout.from_output_size(num_joints, dataset.outputs.shape[1]).contacts:
+        return dataset
+    labels = np.zeros((len(dataset.outputs), NUM_CONTACTS), np.float32)
+    for c, spec in enumerate(dataset.specs):
+        rows = np.flatnonzero(dataset.clip == c)
+        if len(rows):
+            labels[rows] = contact_labels(load_clip(spec, fps=60.0))[dataset.frame[rows] + 1]
+    if base is not None:
+        mean, std = base.output_mean[-NUM_CONTACTS:], base.output_std[-NUM_CONTACTS:]
+    else:
+        train = labels[dataset.split == 0] if (dataset.split == 0).any() else labels
+        mean = train.mean(axis=0)
+        std = np.full(NUM_CONTACTS, max(float(np.sqrt(np.mean((train - mean) ** 2))), 1e-3))
+    dtype = dataset.output_mean.dtype
+    return dataclasses.replace(dataset, outputs=np.concatenate([dataset.outputs, labels], axis=1),
+                               output_mean=np.concatenate([dataset.output_mean, mean]).astype(dtype),
+                               output_std=np.concatenate([dataset.output_std, std]).astype(dtype))
+
+
 def data_from_dataset(dataset, base=None) -> TrainData:
     """:class:`TrainData` from a :class:`jaxstyle.data.datasets.Dataset` built by ``build_pfnn_dataset``,
     normalised with its own statistics or those of ``base``."""

@@ -2,4 +2,4 @@
 
 from jaxstyle._lazy import lazy_module
 
-__getattr__, __dir__ = lazy_module(__name__, ["export", "footik", "preview", "metrics", "viz", "synthesis"])
+__getattr__, __dir__ = lazy_module(__name__, ["export", "footik", "preview", "metrics", "quality", "viz", "synthesis"])

@@ -10,9 +10,12 @@ positions, which nothing ties to the skeleton, are kept in the ``.npz``). The ch
 the origin facing +Z, as the controllers' :func:`initial_state` does; frame ``t`` of the motion is
 generated frame ``t``.
 
-Optionally the feet are pinned while in contact (:func:`jaxstyle.output.footik.fix_foot_sliding`, the
-2022 paper's post-process, section 4.4), with the LPN's predicted contact labels or, for the PFNN,
-heel contacts labelled on the decoded motion by height.
+Optionally the feet (heels and toes) are pinned while in contact
+(:func:`jaxstyle.output.footik.fix_foot_sliding`, the 2022 paper's post-process, section 4.4), with the
+network's predicted contact labels (the LPN's; the PFNN's when trained with the 2018 layout's
+contact outputs) or contacts labelled on the decoded motion by height. Forward kinematics of the
+exported motion is what :mod:`jaxstyle.output.quality` measures, so what a user sees in Blender is
+what is measured.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ import numpy as np
 from jaxstyle.control.controller import Rollout
 from jaxstyle.control.lpn_controller import LPNRollout
 from jaxstyle.data.lpn_features import decode_lpn
-from jaxstyle.data.pfnn_features import decode_pfnn
+from jaxstyle.data.pfnn_features import decode_pfnn, output_contacts
 from jaxstyle.labels.contacts import foot_contacts
 from jaxstyle.motion import Motion
 from jaxstyle.motion.bvh import write_bvh
@@ -56,15 +59,22 @@ def rollout_motion(rollout: Rollout | LPNRollout, skeleton: Motion, *, fps: floa
 
 
 def fix_feet(motion: Motion, rollout: Rollout | LPNRollout, *, blend_frames: int = 5) -> Motion:
-    """``motion`` with its feet pinned while in contact: the LPN's predicted contact labels, or for
-    the PFNN (which predicts none) heel contacts labelled on the motion itself by height alone
-    (within the paper's 1 cm of the floor, runs of at least 0.1 s). The paper's speed test is left
-    out there: a generated foot that slides is exactly the one to pin, and it would fail it."""
+    """``motion`` with its heels and toes pinned while in contact
+    (:func:`jaxstyle.output.footik.fix_foot_sliding`, ``pin_toes``): the network's predicted
+    contacts when it has them (the LPN's two foot labels; the heel and toe labels of a PFNN with
+    the 2018 layout's contact outputs, :func:`jaxstyle.data.pfnn_features.output_contacts`),
+    otherwise heel and toe contacts labelled on the motion itself by height alone (within the
+    paper's 1 cm of the floor, runs of at least 0.1 s). The paper's speed test is left out there:
+    a generated foot that slides is exactly the one to pin, and it would fail it."""
+    contacts = None
     if isinstance(rollout, LPNRollout):
         contacts = np.asarray(rollout.contacts, dtype=np.float64)
     else:
-        contacts = foot_contacts(motion, speed_threshold=None, min_duration=0.1).heel
-    return footik.fix_foot_sliding(motion, contacts, blend_frames=blend_frames)
+        contacts = output_contacts(np.asarray(rollout.outputs), motion.num_joints)
+    if contacts is None:
+        c = foot_contacts(motion, speed_threshold=None, min_duration=0.1)
+        contacts = np.concatenate([c.heel, c.toe], axis=1)
+    return footik.fix_foot_sliding(motion, contacts, blend_frames=blend_frames, pin_toes=True)
 
 
 def save_rollout(path: str | os.PathLike, rollout: Rollout | LPNRollout, skeleton: Motion, *,

@@ -318,3 +318,60 @@ def reference_quality(motion: Motion, *, units_per_meter: float | None = None,
     skeleton (:func:`jaxstyle.estimate_units_per_meter`) when omitted."""
     upm = estimate_units_per_meter(motion) if units_per_meter is None else float(units_per_meter)
     return motion_quality(global_positions(motion), motion, motion.fps, units_per_meter=upm, tolerance_m=tolerance_m)
+
+
+# --- Benchmark figures (experiments/quality.py, jaxstyle.output.quality) --------------------------------------------
+
+def foot_jerk(positions_TxJx3: np.ndarray, skeleton: Motion, fps: float, *, units_per_meter: float) -> float:
+    """Mean jerk (m/s^3) of the ankle joints: foot popping shows as a large value (a foot IK that
+    snaps a foot back raises it; :func:`jitter` averages it away over all joints)."""
+    pos = _positions(positions_TxJx3, num_joints=skeleton.num_joints)
+    _check_scale(units_per_meter, fps)
+    ankles = list(FootJoints.find(skeleton).ankles)
+    if len(pos) < 4:
+        return float("nan")
+    jerk = np.diff(pos[:, ankles], n=3, axis=0) * (float(fps) ** 3 / units_per_meter)
+    return float(np.mean(np.linalg.norm(jerk, axis=-1)))
+
+
+def heading_error_deg(yaw_T: np.ndarray, path_yaw_T: np.ndarray) -> float:
+    """Mean absolute difference (degrees) between the character's facing and the path's, wrapped."""
+    a, b = np.asarray(yaw_T, dtype=np.float64), np.asarray(path_yaw_T, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"yaw_T and path_yaw_T differ in shape: {a.shape} and {b.shape}")
+    return float(np.degrees(np.mean(np.abs(np.angle(np.exp(1j * (a - b)))))))
+
+
+def ground_speed(origin_Tx2: np.ndarray, fps: float, *, units_per_meter: float) -> np.ndarray:
+    """``(T,)`` root ground speed (m/s): the step into each frame (the first frame repeats the second)."""
+    o = _points_2d(origin_Tx2, "origin_Tx2")
+    step = np.linalg.norm(np.diff(o, axis=0), axis=-1) * fps / units_per_meter
+    return np.concatenate([step[:1], step]) if len(step) else np.zeros(len(o))
+
+
+def stop_times(origin_Tx2: np.ndarray, path_velocity_Tx2: np.ndarray, fps: float, *, units_per_meter: float,
+               threshold_m_s: float = 0.1, window_s: float = 1.0 / 6.0) -> np.ndarray:
+    """Seconds from each stop command (the path's velocity falls to zero after moving) until the
+    root's ground speed, averaged over ``window_s``, falls below ``threshold_m_s``; NaN where it
+    never does before the path moves again (or ends). The issue's target: within 0.5 s."""
+    v = np.linalg.norm(np.asarray(path_velocity_Tx2, dtype=np.float64), axis=1)
+    moving = v > 1e-9
+    stops = np.flatnonzero(moving[:-1] & ~moving[1:]) + 1
+    speed = ground_speed(origin_Tx2, fps, units_per_meter=units_per_meter)
+    n = max(int(round(window_s * fps)), 1)
+    smooth = np.convolve(speed, np.ones(n) / n, mode="full")[:len(speed)]  # trailing mean
+    out = []
+    for s in stops:
+        end = s + int(np.argmax(moving[s:])) if moving[s:].any() else len(v)
+        below = np.flatnonzero(smooth[s:end] < threshold_m_s)
+        out.append(below[0] / fps if len(below) else float("nan"))
+    return np.asarray(out, dtype=np.float64)
+
+
+def max_joint_difference_m(a_TxJx3: np.ndarray, b_TxJx3: np.ndarray, *, units_per_meter: float) -> float:
+    """Largest distance (m) between the same joint in two motions, e.g. the network's predicted
+    joints and the exported skeleton's (forward kinematics of the BVH)."""
+    a, b = _positions(a_TxJx3, "a_TxJx3"), _positions(b_TxJx3, "b_TxJx3")
+    if a.shape != b.shape:
+        raise ValueError(f"a_TxJx3 and b_TxJx3 differ in shape: {a.shape} and {b.shape}")
+    return float(np.max(np.linalg.norm(a - b, axis=-1))) / units_per_meter if a.size else float("nan")

@@ -1,0 +1,118 @@
+"""The motion-quality benchmark of issue 19: does generated locomotion follow the path, stop, and
+keep its feet planted as well as the capture it learnt from?
+
+    python experiments/quality.py [--small] [--run runs/quality] [--no-contacts]
+
+Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output):
+
+1. Data: the shared 100STYLE sample ($JAXSTYLE_MOCAP/100style). Base styles: the paper's base
+   styles the sample has (Angry, Chicken, Drunk, InTheDark, Neutral), gaits BR, BW, FR, FW, SR,
+   SW and ID (idle, so that the network has seen standing); few-shot styles: Elated and Rushed
+   (FW), one 10 s clip each (2018 section 7).
+2. Base: the 2018 PFNN at the paper's size (hidden 512, CP rank 30) with the paper's recipe
+   (Adam 1e-4, batch 32, dropout 0.3, 20 epochs here over the whole sample), with the 2018
+   layout's optional foot contact outputs (``--no-contacts``: the paper's layout, contacts then
+   labelled on the output by height). ``--small``: hidden 256, rank 8, 10 epochs, clips cut
+   to 20 s, gaits FW, FR, ID.
+3. Few-shot: one compiled sweep over dropout rates 0.1, 0.3, 0.5, 0.7 (``--small``: 0.3, 0.5),
+   100 epochs (``--small``: 40), rate chosen on validation loss and the closed-loop check
+   (:func:`jaxstyle.mason2018.pipeline.run_sweep`).
+4. Synthesis: every base style and few-shot set along straight, circle (radius 2 m), zigzag
+   (45 degrees, 2 s period), stop_and_go (2 s walk, 1 s stand), speed_ramp (0.5x to 1.5x) and
+   waypoints, 8 s each at the style's own median speed, with the path-following law
+   (:func:`jaxstyle.control.loop.follow_gains`, 0.25 s), in one batched rollout.
+5. Measures (:mod:`jaxstyle.output.quality`): skating of the network's joints, of the exported
+   BVH and after heel-and-toe contact IK; feet on floor; bone error (network, BVH); the largest
+   network-to-BVH joint distance; path error mean / final / final %; heading error; time to
+   stop; jitter; ankle jerk; each beside the style's capture; the issue's targets checked.
+6. Diagnosis (:func:`jaxstyle.output.quality.diagnose`) of the first base style and the first
+   few-shot set.
+
+Writes to ``--run``: ``quality.csv``, ``quality.md`` (the table, the targets, the diagnosis),
+``quality.png`` (bars: generated vs capture), ``contact_sheet.png``. Trained models are kept in
+``--run/base`` and ``--run/sweep`` and reused on a re-run. The 2022 LPN-FiLM is measured by its
+own controller's pipeline (issue 19 item 5, another module); this script covers the 2018 models.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+
+import jaxstyle as js
+from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, available_styles
+from jaxstyle.mason2018 import pipeline, selection
+from jaxstyle.output import preview, quality
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--small", action="store_true", help="small sizes for a quick validation (see the protocol)")
+    parser.add_argument("--run", type=Path, default=None, help="run folder (default runs/quality[_small])")
+    parser.add_argument("--no-contacts", action="store_true", help="the paper's output layout, without contacts")
+    parser.add_argument("--seconds", type=float, default=quality.SECONDS, help="seconds per path")
+    a = parser.parse_args()
+    run = a.run or Path("runs/quality_small" if a.small else "runs/quality")
+    run.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    root = js.mocap_dir() / "100style"
+    have = set(available_styles(root))
+    base_styles = tuple(s for s in PAPER_BASE if s in have)
+    shot_styles = [s for s in PAPER_FEWSHOT if s in have and (root / s / f"{s}_FW.bvh").is_file()]
+    if a.small:
+        settings = pipeline.BaseSettings(str(root), base_styles, ("FW", "FR", "ID"), hidden=256, rank=8, epochs=10,
+                                         max_seconds=20.0, contacts=not a.no_contacts)
+        rates, shot_epochs = (0.3, 0.5), 40
+    else:
+        settings = pipeline.BaseSettings(str(root), base_styles, LOCOMOTION_GAITS + ("ID",), hidden=512, rank=30,
+                                         epochs=20, contacts=not a.no_contacts)
+        rates, shot_epochs = (0.1, 0.3, 0.5, 0.7), 100
+    cache = run / "cache"
+    base = pipeline.train_base(settings, run / "base", cache=cache)
+    t_base = time.perf_counter() - t0
+    sweep_dir = run / "sweep"
+    if (sweep_dir / "sweep.json").is_file():
+        chosen, shots = pipeline.load_sweep(sweep_dir, base, cache=cache)
+    else:
+        specs = pipeline.fewshot_specs(root, shot_styles, seconds=10.0, gaits=("FW",))
+        result, _, shots = pipeline.run_sweep(base, specs, sweep_dir, rates=rates, epochs=shot_epochs, cache=cache)
+        chosen = json.loads((sweep_dir / "chosen_rates.json").read_text())
+    t_sweep = time.perf_counter() - t0 - t_base
+    subjects = [quality.Subject(f"{s} (base)", "base", jax.tree.map(lambda v, i=i: v[i], base.adapters),
+                                base.dataset, s) for i, s in enumerate(base.dataset.styles)]
+    for name in chosen:
+        adapter = selection.load_adapter(sweep_dir / "adapters" / name, base.model)
+        subjects.append(quality.Subject(f"{name} (few-shot, rate {chosen[name]['rate']:g})", "few-shot", adapter,
+                                        shots, name))
+    t1 = time.perf_counter()
+    rows, drawn = quality.run(base.params, base.normalisers, subjects, base.skeleton, seconds=a.seconds)
+    t_measure = time.perf_counter() - t1
+    checks = quality.targets(rows)
+    diag = [quality.diagnose(base.params, base.normalisers, s, base.skeleton)
+            for s in (subjects[0], *(s for s in subjects if s.kind == "few-shot"))][:2]
+    upm = js.estimate_units_per_meter(base.skeleton)
+    sheet = preview.contact_sheet(run / "contact_sheet.png", [drawn[(s.title, "circle")][0] for s in subjects[:4]],
+                                  base.skeleton.parents, frames=6, titles=[s.title for s in subjects[:4]],
+                                  paths=[drawn[(s.title, "circle")][1] for s in subjects[:4]], units_per_meter=upm,
+                                  fps=base.skeleton.fps)
+    size = (f"{'SMALL preset: ' if a.small else ''}hidden {settings.hidden}, rank {settings.rank}, "
+            f"{settings.epochs} epochs, contacts {'on' if settings.contacts else 'off'}")
+    timing = (f"base {t_base:.0f} s, sweep {t_sweep:.0f} s, rollouts and measures {t_measure:.0f} s, "
+              f"all {time.perf_counter() - t0:.0f} s")
+    lines = [f"# Motion quality ({size})", "", timing, "", *quality.table(rows), "", "## Targets", "",
+             *quality.target_summary(checks), "", "## Diagnosis", ""]
+    for d in diag:
+        lines += [*quality.diagnosis_lines(d), ""]
+    (run / "quality.md").write_text("\n".join(lines) + "\n")
+    files = [quality.write_csv(rows, run / "quality.csv"), run / "quality.md", quality.plot(rows, run / "quality.png"),
+             sheet]
+    print("\n".join(lines))
+    print("written: " + ", ".join(map(str, files)))
+
+
+if __name__ == "__main__":
+    main()
