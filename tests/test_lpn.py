@@ -3,6 +3,8 @@ testing and FiLM fine-tuning sweep, checked against numpy references and single 
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -368,8 +370,11 @@ def test_style_data_positions_are_the_skeletons_bones_in_metres(real_data):
     # MANN gating input: the 4 end effectors' velocities, taken from the normalised input
     mann = train_lpn.style_data(ds, skeleton, backbone="mann")
     assert mann.gate.shape == (len(ds.inputs), 12)
+    # PFNN backbones: the gate is each row's global phase; a dataset without one is refused
+    pfnn = train_lpn.style_data(ds, skeleton, backbone="pfnn")
+    np.testing.assert_array_equal(pfnn.gate[:, 0], np.asarray(ds.global_phase, np.float32))
     with pytest.raises(ValueError, match="global phase"):
-        train_lpn.style_data(ds, skeleton, backbone="pfnn")
+        train_lpn.style_data(dataclasses.replace(ds, global_phase=np.zeros(0)), skeleton, backbone="pfnn")
 
 
 def test_training_clips_lie_in_training_rows(real_data):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -85,3 +87,44 @@ def test_short_clip_errors_and_has_no_style_clip(mocap):
         lf.encode_lpn(motion.frames(0, 100))
     with pytest.raises(ValueError, match="outputs must have shape"):
         lf.decode_lpn(np.zeros((3, 341)), motion)
+
+
+def test_rows_carry_the_labellers_global_phase(mocap):
+    """The global phase of every LPN row is :func:`jaxstyle.global_phase` of the clip at the row's
+    frame (the PFNN backbones' gate), on a clip and on its mirror; a given phase is used as given."""
+    motion = js.read_bvh(mocap / "100style/Neutral/Neutral_FW.bvh").frames(300, 900)
+    for m in (motion, js.mirror(motion)):
+        feats = lf.encode_lpn(m)
+        labels = js.global_phase(m)
+        np.testing.assert_array_equal(feats.global_phase, labels[feats.frames])
+        assert np.ptp(feats.global_phase) > 0.5  # a walk: the phase goes round
+    given = np.linspace(0, 3, motion.num_frames) % 1.0
+    feats = lf.encode_lpn(motion, global_phase_T=given)
+    np.testing.assert_array_equal(feats.global_phase, given[feats.frames])
+    with pytest.raises(ValueError, match="global_phase_T must have shape"):
+        lf.encode_lpn(motion, global_phase_T=given[:-1])
+
+
+def test_lpn_dataset_global_phase_equals_the_labeller_on_the_same_frames(tmp_path):
+    """Built (and reloaded from its cache), an LPN dataset's ``global_phase`` equals the labeller
+    run on each clip (mirrored copies included) at each row's frame; the local phases stay 8 columns."""
+    from jaxstyle.data import datasets, procedural
+    from jaxstyle.mason2022 import train as train_lpn
+
+    root = procedural.write_dataset(tmp_path / "p", ["Neutral", "Limping"], ("FW",), seconds=8)
+    specs = datasets.specs_100style(root, gaits=("FW",))
+    assert any(s.mirror for s in specs)
+    for _ in range(2):  # built, then from the cache
+        ds = datasets.build_lpn_dataset(specs, cache_dir=tmp_path / "cache")
+        assert ds.phases.shape == (len(ds.inputs), 8) and ds.global_phase.shape == (len(ds.inputs),)
+        for i, spec in enumerate(ds.specs):
+            rows = np.flatnonzero(ds.clip == i)
+            labels = js.global_phase(datasets.load_clip(spec)).astype(np.float32)
+            np.testing.assert_array_equal(ds.global_phase[rows], labels[ds.frame[rows]])
+    skeleton = datasets.load_clip(ds.specs[0])
+    data = train_lpn.style_data(ds, skeleton, backbone="pfnn")
+    np.testing.assert_array_equal(data.gate, ds.global_phase[:, None])
+    np.testing.assert_array_equal(train_lpn.style_data(ds, skeleton).gate, ds.phases)  # the LPN's: local phases
+    stale = dataclasses.replace(ds, global_phase=np.zeros(0, np.float32))  # a cache from before the field
+    with pytest.raises(ValueError, match="global phases for"):
+        train_lpn.style_data(stale, skeleton, backbone="pfnn")

@@ -3,6 +3,7 @@ folder functions (:mod:`jaxstyle.data.folders`) and the command modules' structu
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -54,12 +55,56 @@ def test_build_train_finetune_select_report(tiny, tmp_path):
     assert pipeline.film_figure(model, result, tmp_path / "out" / "figure11.png").is_file()
 
 
-def test_model_config_refuses_the_pfnn_backbone(tiny):
+@pytest.mark.parametrize("name", [pytest.param("PFNN One-hot", marks=pytest.mark.slow), "PFNN Resad",
+                                  pytest.param("PFNN FiLM", marks=pytest.mark.slow)])
+def test_the_pfnn_backbones_train_on_the_global_phase_within_a_budget(tiny, tmp_path, name):
+    """Table 2's PFNN-backbone models train on the LPN rows, gated by each row's global phase;
+    a zero budget still gives one epoch, and a second call with a budget continues the run."""
     root, cache = tiny
     data = pipeline.build_data(root, ("Neutral",), cache=cache)
     assert data.new is None
+    config = pipeline.model_config(data.base, name, hidden=8, generator_hidden=16, filters=4)
+    assert config.backbone == "pfnn" and config.output_size == data.base.outputs.shape[1]
+    run = pipeline.train_for(data, config, tmp_path / "m", pipeline.Budget(0.0, max_epochs=2), name=name,
+                             progress=False)
+    assert (run.epochs, run.stopped) == (1, "budget")
+    np.testing.assert_array_equal(run.model.data.gate, data.base.global_phase[:, None])
+    losses = pipeline.model_losses(run.model)
+    assert np.isfinite(losses["mse"]).all() and np.isfinite(losses["bll"]).all()
+    again = pipeline.train_for(data, config, tmp_path / "m", pipeline.Budget(1e6, max_epochs=2), name=name,
+                               progress=False)
+    assert (again.epochs, again.stopped) == (2, "max epochs")
+    log = pipeline.read_log(tmp_path / "m")
+    assert log["epoch"].tolist() == [1, 2] and np.isfinite(log["val_mse"]).all()
+    table = pipeline.budget_table({name: again}, {name: log})
+    assert table[2].startswith(f"| {name} | 2 | max epochs | ")
+    assert pipeline.curves_figure({name: log}, tmp_path / "curves.png").is_file()
+
+
+def test_model_config_refuses_a_dataset_without_global_phase(tiny):
+    root, cache = tiny
+    data = pipeline.build_data(root, ("Neutral",), cache=cache)
+    stale = dataclasses.replace(data.base, global_phase=np.zeros(0, np.float32))  # an old cache
     with pytest.raises(folders.PipelineError, match="global phase"):
-        pipeline.model_config(data.base, "PFNN FiLM")
+        pipeline.model_config(stale, "PFNN FiLM")
+    assert pipeline.model_config(stale, "LPN FiLM").backbone == "lpn"  # the others do not need it
+
+
+def test_flattened_and_the_paper_ordering_lines():
+    assert not pipeline.flattened([1.0, 0.5, 0.4])  # too few epochs
+    assert not pipeline.flattened([1.0, 0.5, 0.45, 0.40, 0.35])
+    assert pipeline.flattened([1.0, 0.5, 0.499, 0.498, 0.497])
+    assert pipeline.flattened([1.0, 0.5, 0.6, 0.7, 0.8])  # rising: flattened (and worse)
+    assert not pipeline.flattened([1.0, 0.5, 0.6, 0.7, 0.3])
+    r = {n: {"mse": np.array([m, m]), "bll": np.array([0.0, 0.0])}
+         for n, m in (("LPN FiLM", 0.1), ("PFNN FiLM", 0.2), ("LPN One-hot", 0.15), ("PFNN Resad", 0.3),
+                      ("LPN Resad", 0.25))}
+    lines = pipeline.ordering_lines(r)
+    assert lines[0].startswith("ranked by test MSE + BLL (lowest first): LPN FiLM 0.1000, LPN One-hot 0.1500")
+    assert "does not hold (worst FiLM PFNN FiLM 0.2000, best other LPN One-hot 0.1500)" in lines[1]
+    assert "PFNN Resad below LPN Resad: does not hold (0.3000 vs 0.2500)" in lines[2]
+    r["PFNN FiLM"] = {"mse": np.array([0.12]), "bll": np.array([0.0])}
+    assert ": holds" in pipeline.ordering_lines(r)[1]
 
 
 def test_every_command_module_is_a_thin_parser_and_run():

@@ -18,12 +18,13 @@ from jaxstyle.cli.common import (
     add_synth_args,
     check_positive,
     elapsed,
+    joint_map,
     machine,
     progress,
     written,
 )
 from jaxstyle.cli.sweep import sweep_and_report
-from jaxstyle.cli.synthesize import synthesize_and_report
+from jaxstyle.cli.synthesize import synthesize_and_report, synthesize_lpn_and_report
 from jaxstyle.cli.train_base import base_settings
 
 NAME = "demo"
@@ -41,8 +42,17 @@ One command from nothing to a stylised animation (Mason et al. 2018 end to end):
 4. base and few-shot styles walk a path (RUN/synthesis: a GIF, BVH files, quality.csv).
 
 About 5 minutes on a 2-core CPU with the defaults. Re-running resumes or reuses the base.
+
+--model lpn-film runs Mason, Starke & Komura 2022 instead: LPN rows of the base styles, LPN-FiLM
+trained with a smaller preset than the paper's (see --hidden, --filters, --generator-hidden,
+--lpn-epochs, --learning-rate; RUN/lpn), its FiLM generator fine-tuned on the held-out styles
+(--finetune-steps), then base styles, a fine-tuned style and a FiLM blend along the paths
+(RUN/synthesis/lpn-film: GIF, BVH files, quality.csv).
 """
 DEMO_MAX_BASE_STYLES = 8
+DEMO_MODELS = ("pfnn", "lpn-film", "lpn-onehot", "lpn-resad", "mann-film")
+DEMO_FINETUNE_RATES = (0.1, 0.3)
+"""The demo's FiLM fine-tuning rates (``jaxstyle lpn`` sweeps :data:`jaxstyle.train.defaults.FILM_DEFAULT_RATES`)."""
 
 
 def add_arguments(p) -> None:
@@ -53,6 +63,22 @@ def add_arguments(p) -> None:
     add_sweep_args(p, epochs=40)
     add_synth_args(p, paths=("circle",), seconds=8.0)
     p.add_argument("--data-seconds", type=float, default=24.0, help="seconds of each procedural clip")
+    p.add_argument("--model", choices=DEMO_MODELS, default="pfnn",
+                   help="pfnn: the 2018 pipeline; lpn-film (or another LPN/MANN model of the 2022 paper's Table 2): "
+                        "the 2022 pipeline")
+    g = p.add_argument_group("2022 models (--model lpn-film ...)")
+    g.add_argument("--lpn-epochs", type=int, default=2, help="training epochs of the 2022 model (paper: 90)")
+    g.add_argument("--learning-rate", type=float, default=1e-3,
+                   help="Adam learning rate of the 2022 model (demo: 1e-3 for its few epochs; paper and "
+                        "`jaxstyle lpn`: 1e-4)")
+    g.add_argument("--generator-hidden", type=int, default=512,
+                   help="FiLM generator's dense units (demo preset; paper and `jaxstyle lpn`: 2048)")
+    g.add_argument("--filters", type=int, default=32,
+                   help="FiLM generator's convolution filters (demo preset; paper and `jaxstyle lpn`: 256)")
+    g.add_argument("--finetune-steps", type=int, default=40,
+                   help="FiLM fine-tuning steps per (new style, rate); 0: no new styles")
+    g.add_argument("--blend-weights", type=float, nargs="+", default=[0.5, 0.5], metavar="W",
+                   help="weights of the blend of the first 2 or 3 styles shown (FiLM vectors interpolated)")
 
 
 def demo_base_styles(base_styles: Sequence[str]) -> list[str]:
@@ -96,20 +122,77 @@ def _data_root(args, run: Run) -> Path:
     return root
 
 
+def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
+    """The 2022 pipeline end to end: LPN rows, a style model (the demo's smaller FiLM generator),
+    FiLM fine-tuning on the held-out styles, characters (and a FiLM blend) along the paths."""
+    from jaxstyle.data import folders
+    from jaxstyle.mason2022 import pipeline
+    from jaxstyle.mason2022 import synthesis as synthesis2022
+
+    check_positive(args, "lpn_epochs", "hidden", "generator_hidden", "filters", "learning_rate")
+    name = synthesis2022.MODELS[args.model]
+    styles, new_styles = folders.split_styles(root, args.fewshot_styles, args.styles)
+    t0 = time.perf_counter()
+    data = pipeline.build_data(root, styles, new_styles, gaits=args.gaits, max_seconds=args.max_seconds,
+                               cache=run.dir / "cache", progress=progress(args), joint_map=joint_map(args))
+    run.say(f"LPN data: {len(data.base.styles)} training styles ({', '.join(data.base.styles)}), "
+            f"{int((data.base.split == 0).sum()):,} training rows, {len(data.base.clips)} style clips; new styles "
+            f"{', '.join(data.new.styles) if data.new is not None else 'none'} ({elapsed(t0)})")
+    config = pipeline.model_config(data.base, name, hidden=args.hidden, generator_hidden=args.generator_hidden,
+                                   filters=args.filters)
+    if config.modulation == "film":
+        run.say(f"{name}: the demo's smaller preset: {args.hidden} hidden units, a FiLM generator of "
+                f"{args.filters} filters and {args.generator_hidden} dense units (the paper's, and `jaxstyle lpn`'s "
+                f"default: 512, 256 and 2048); {args.lpn_epochs} epochs at learning rate {args.learning_rate:g} "
+                "(paper: 90 at 1e-4)")
+    else:
+        run.say(f"{name}: the demo's smaller preset: {args.hidden} hidden units (paper: 512); {args.lpn_epochs} "
+                f"epochs at learning rate {args.learning_rate:g} (paper: 90 at 1e-4)")
+    t0 = time.perf_counter()
+    model = pipeline.train_model(data, config, run.dir / "lpn", name=name, epochs=args.lpn_epochs,
+                                 progress=progress(args), learning_rate=args.learning_rate)
+    run.say(f"{name} ready ({elapsed(t0)})")
+    for line in pipeline.losses_table(model.data.styles, pipeline.model_losses(model)):
+        run.say(line)
+    files = [run.dir / "lpn"]
+    sets = []
+    if config.modulation == "film" and args.finetune_steps > 0 and data.new is not None:
+        result = pipeline.finetune_sweep(model, data, rates=DEMO_FINETUNE_RATES, steps=args.finetune_steps,
+                                         progress=progress(args))
+        for line in ["", pipeline.finetune_summary(result), *pipeline.finetune_table(result)]:
+            run.say(line)
+        files += list(pipeline.write_finetune(result, run.dir / "lpn").values())
+        sets = list(result.styles[:1])
+    loaded = synthesis2022.Loaded(model, data, run.dir / "lpn", args.lpn_epochs)
+    base_styles = [s for s in ("Neutral", "Crouched") if s in model.data.styles] or list(model.data.styles[:2])
+    blend = list(args.blend_weights) if args.blend_weights else None
+    if blend is not None and len(blend) == 3 and len(base_styles) + len(sets) < 3:
+        base_styles = list(model.data.styles[:3])
+    synth = synthesize_lpn_and_report(run, args, loaded, base_styles, sets, run.dir / "synthesis" / args.model,
+                                      blend=blend)
+    run.say("")
+    bvh = run.dir / "synthesis" / args.model / "bvh" / f"({sum(f.suffix == '.bvh' for f in synth.files)} BVH files)"
+    written(run, "written", files + [f for f in synth.files if f.suffix in (".gif", ".mp4", ".csv", ".png")] + [bvh])
+    run.say(f"config and log: {run.dir / 'config.json'}, {run.dir / 'log.txt'}")
+    run.say(f"demo finished in {elapsed(t_all)}")
+
+
 def run(args, run: Run) -> None:
     from jaxstyle.mason2018 import pipeline
 
     t_all = time.perf_counter()
     check_positive(args, "seconds", "synth_seconds", "data_seconds")
-    run.say(f"jaxstyle demo on {machine()}")
+    run.say(f"jaxstyle demo on {machine()}" + ("" if args.model == "pfnn" else f" (--model {args.model})"))
     root = _data_root(args, run)
     run.save_settings(vars(args))  # with the defaults the data folder implied
+    if args.model != "pfnn":
+        return run_lpn(args, run, root, t_all)
     settings, held_out = base_settings(args, root)
     t0 = time.perf_counter()
     base = pipeline.train_base(settings, run.dir / "base", cache=run.dir / "cache", progress=progress(args),
                                log=run.say)
     run.say(f"base ready ({elapsed(t0)})")
-    specs = pipeline.fewshot_specs(root, held_out, args.seconds, settings.gaits)
+    specs = pipeline.fewshot_specs(root, held_out, args.seconds, settings.gaits, settings.joint_map)
     if not specs:
         raise CLIError(f"the few-shot styles {', '.join(held_out)} have no clip of the gaits "
                        f"{', '.join(settings.gaits or ['(all)'])} in {root}")

@@ -12,8 +12,10 @@ from jaxstyle.cli.common import (
     LazyDefault,
     Run,
     add_common,
+    add_joint_map_arg,
     check_positive,
     elapsed,
+    joint_map,
     machine,
     progress,
     written,
@@ -29,6 +31,16 @@ length loss per style, then fine-tune only the FiLM generator on each new style 
 rate in one compiled sweep, report the losses before and after, and choose a rate per new style
 (lowest validation loss). Writes RUN/lpn: checkpoints, results.md, chosen_rates.json,
 finetuned_generators.npz and figure11.png.
+
+With --clip FILE.bvh [FILE2.bvh ...] the new styles are your own clips of the training data's
+skeleton instead (one new style per file, named by its stem; --clip-range START END keeps those
+seconds of each; mirrored unless --asymmetric): the trained model of RUN/lpn is reloaded (give
+the flags it was trained with; it is trained first if it is not there), its FiLM generator alone
+is fine-tuned on every clip at every --rates in one compiled sweep, each pair is validated on the
+clip's held-out frames and driven closed-loop by the 2022 controller, and a rate is chosen per
+clip (lowest validation loss among the pairs that pass the check). Writes RUN/lpn: chosen_rates.json
+(with the check), finetuned_generators.npz, generators/<style>.npz (the chosen generator),
+clips.json and results.md; `jaxstyle synthesize` can then drive the clip styles.
 """
 
 
@@ -44,6 +56,17 @@ def add_arguments(p) -> None:
     p.add_argument("--filters", type=int, default=256, help="FiLM generator's convolution filters (paper: 256)")
     p.add_argument("--finetune-steps", type=int, default=150, help="fine-tuning steps per (style, rate); 0: none")
     p.add_argument("--rates", type=float, nargs="+", default=FINETUNE_RATES, help="fine-tuning dropout rates")
+    p.add_argument("--clip", type=Path, nargs="+", help="your own BVH clips (the training data's skeleton), one new "
+                                                        "style per file named by its stem; replaces --new-styles")
+    p.add_argument("--clip-range", type=float, nargs=2, metavar=("START", "END"), help="seconds of each --clip")
+    p.add_argument("--asymmetric", action="store_true", help="do not mirror the --clip files")
+    p.add_argument("--devices", help="train data-parallel over 'all' devices or that many (default: one)")
+    p.add_argument("--distributed", action="store_true",
+                   help="multi-host: call jax.distributed.initialize() first (start the same command on every host)")
+    p.add_argument("--batch-size", type=int, default=32,
+                   help="minibatch (paper: 32); Adam's rate scales by sqrt(batch / 32) from 1e-4")
+    p.add_argument("--bf16", action="store_true", help="bfloat16 products, float32 accumulation and weights")
+    add_joint_map_arg(p)
     add_common(p)
 
 
@@ -52,23 +75,51 @@ def run(args, run: Run) -> None:
     from jaxstyle.mason2022 import pipeline
 
     check_positive(args, "epochs", "hidden", "generator_hidden", "filters")
+    if args.distributed:  # before anything starts JAX's backends
+        from jaxstyle.train import shard
+
+        shard.initialize()
     if args.finetune_steps < 0:
         raise CLIError(f"--finetune-steps must be >= 0, got {args.finetune_steps}")
+    if args.clip and args.finetune_steps == 0:
+        raise CLIError("--clip needs fine-tuning steps: --finetune-steps must be > 0")
+    if args.clip_range and not args.clip:
+        raise CLIError("--clip-range needs --clip files")
     root = folders.style_root(args.data)
-    styles, new_styles = folders.split_styles(root, args.new_styles, args.styles)
-    run.say(f"lpn on {machine()}: training styles {', '.join(styles)}; new styles {', '.join(new_styles)}")
+    # with --clip and --styles, no style of the folder is held out (the clips are the new styles)
+    held_out = () if args.clip and args.styles and not args.new_styles else args.new_styles
+    styles, new_styles = folders.split_styles(root, held_out, args.styles)
+    if args.clip:
+        new_styles = ()
+    new_text = ", ".join(new_styles) or "your --clip files"
+    run.say(f"lpn on {machine()}: training styles {', '.join(styles)}; new styles {new_text}")
     data = pipeline.build_data(root, styles, new_styles, gaits=args.gaits, max_seconds=args.max_seconds,
-                               cache=run.dir / "cache", progress=progress(args))
+                               cache=run.dir / "cache", progress=progress(args), joint_map=joint_map(args))
+    if args.clip:
+        data = pipeline.user_clip_data(data, args.clip, mirror=not args.asymmetric,
+                                       seconds=tuple(args.clip_range) if args.clip_range else None,
+                                       joint_map=joint_map(args), cache=run.dir / "cache", progress=progress(args))
+        run.say(f"new styles from your clips: {', '.join(data.new.styles)} ({len(data.new.specs)} clip(s), mirrors "
+                f"included, {int((data.new.split == 0).sum()):,} training rows)")
     config = pipeline.model_config(data.base, hidden=args.hidden, generator_hidden=args.generator_hidden,
                                    filters=args.filters)
     t0 = time.perf_counter()
-    model = pipeline.train_model(data, config, run.dir / "lpn", epochs=args.epochs, progress=progress(args))
+    model = pipeline.train_model(data, config, run.dir / "lpn", epochs=args.epochs, progress=progress(args),
+                                 **_speed_options(args))
     run.say(f"LPN-FiLM ({args.hidden} hidden, {args.epochs} epochs, {int((data.base.split == 0).sum()):,} training "
             f"rows) ready in {elapsed(t0)}: {run.dir / 'lpn'}")
     for line in pipeline.losses_table(model.data.styles, pipeline.model_losses(model)):
         run.say(line)
     lines, files = [], [run.dir / "lpn", run.dir / "lpn" / "results.md"]
-    if args.finetune_steps > 0:
+    if args.clip:
+        result, checked, paths = pipeline.finetune_clips(model, data, run.dir / "lpn", rates=args.rates,
+                                                         steps=args.finetune_steps, progress=progress(args))
+        lines = [*pipeline.check_table(result, checked), "", *pipeline.finetune_table(result, checked=True)]
+        for line in ["", pipeline.finetune_summary(result) + "; then a closed-loop check of every pair", *lines]:
+            run.say(line)
+        run.say("chosen rates: " + ", ".join(f"{s} {result.chosen_rate(s):g}" for s in result.styles))
+        files += list(paths.values())
+    elif args.finetune_steps > 0:
         result = pipeline.finetune_sweep(model, data, rates=args.rates, steps=args.finetune_steps,
                                          progress=progress(args))
         lines = pipeline.finetune_table(result)
@@ -79,3 +130,26 @@ def run(args, run: Run) -> None:
         files.append(pipeline.film_figure(model, result, run.dir / "lpn" / "figure11.png"))
     (run.dir / "lpn" / "results.md").write_text("\n".join(lines) + "\n")
     written(run, "written", files)
+
+
+def _speed_options(args) -> dict:
+    """``train_model`` options of --devices, --distributed, --batch-size and --bf16 (defaults: the
+    paper's batch 32 and rate 1e-4, float32, one device)."""
+    from jaxstyle.mason2022 import train as train_lpn
+    from jaxstyle.train import shard
+
+    check_positive(args, "batch_size")
+    devices = None
+    if args.devices is not None:
+        if args.devices != "all" and not args.devices.isdigit():
+            raise CLIError(f"--devices must be 'all' or a count, got {args.devices!r}")
+        devices = args.devices if args.devices == "all" else int(args.devices)
+        try:
+            shard.check_batch(shard.data_mesh(devices), args.batch_size)
+        except ValueError as e:
+            raise CLIError(f"--devices {args.devices}: {e}") from None
+    options = {"devices": devices, "compute_dtype": "bfloat16" if args.bf16 else "float32"}
+    if args.batch_size != train_lpn.PAPER_BATCH:
+        scaled = train_lpn.with_batch_size(train_lpn.LPNTrainConfig(), args.batch_size)
+        options.update(batch_size=scaled.batch_size, learning_rate=scaled.learning_rate)
+    return options

@@ -10,9 +10,11 @@ from jaxstyle.cli.common import (
     CLIError,
     Run,
     add_common,
+    add_joint_map_arg,
     add_sweep_args,
     check_positive,
     elapsed,
+    joint_map,
     machine,
     progress,
     written,
@@ -37,6 +39,7 @@ def add_arguments(p) -> None:
                                                         "per file named by its stem; replaces --sets")
     p.add_argument("--clip-range", type=float, nargs=2, metavar=("START", "END"), help="seconds of each --clip")
     p.add_argument("--asymmetric", action="store_true", help="do not mirror the --clip files")
+    add_joint_map_arg(p)  # default: the base's
     add_common(p)
     add_sweep_args(p, epochs=100)
 
@@ -62,17 +65,19 @@ def run(args, run: Run) -> None:
     from jaxstyle.mason2018 import pipeline
 
     check_positive(args, "seconds", "sweep_epochs")
+    user_map = joint_map(args)
     base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache", progress=progress(args), log=lambda _: None)
     root = Path(base.settings.data)
+    jmap = user_map or base.settings.joint_map
     if args.clip:
         specs = pipeline.user_clip_specs(args.clip, not args.asymmetric,
-                                         tuple(args.clip_range) if args.clip_range else None)
+                                         tuple(args.clip_range) if args.clip_range else None, jmap)
     else:
         sets = args.sets or [s for s in pipeline.available_styles(root) if s not in base.settings.styles]
         if not sets:
             raise CLIError(f"the base was trained on every style of {root}: name few-shot --sets or give --clip files")
         pipeline.split_styles(root, sets, base.settings.styles)  # checks the names
-        specs = pipeline.fewshot_specs(root, sets, args.seconds, args.gaits or base.settings.gaits)
+        specs = pipeline.fewshot_specs(root, sets, args.seconds, args.gaits or base.settings.gaits, jmap)
         if not specs:
             gaits = args.gaits or base.settings.gaits or ["(all)"]
             raise CLIError(f"no clip of {', '.join(sets)} with the gaits {', '.join(gaits)}")

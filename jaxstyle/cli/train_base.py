@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import DATA_HELP, Run, add_base_args, add_common, elapsed, machine, progress
+from jaxstyle.cli.common import DATA_HELP, Run, add_base_args, add_common, elapsed, joint_map, machine, progress
 
 NAME = "train-base"
 HELP = "train the 2018 base PFNN with one CP adapter per style"
@@ -31,7 +31,8 @@ def base_settings(args, root: Path):
     base_styles, held_out = pipeline.split_styles(root, args.fewshot_styles, args.styles)
     gaits = tuple(args.gaits) if args.gaits else None
     settings = pipeline.BaseSettings(str(root), base_styles, gaits, hidden=args.hidden, rank=args.rank,
-                                     epochs=args.base_epochs, max_seconds=args.max_seconds)
+                                     epochs=args.base_epochs, max_seconds=args.max_seconds,
+                                     joint_map=joint_map(args))
     return settings, held_out
 
 

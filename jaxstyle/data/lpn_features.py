@@ -15,6 +15,8 @@ For frame ``t`` in the character frame ``C_t`` (:mod:`jaxstyle.motion.character_
   ``t - 60 .. t + 50`` every 10 frames at 60 fps, then the joint features of frame ``t``;
 * local phases ``P_t`` (8): the 4 Eq. 1 phase features of :func:`jaxstyle.local_phases`,
   (sin, cos) per bone, the gating network's input;
+* global phase ``phi_t`` (1, in cycles): :func:`jaxstyle.labels.phase.global_phase` of the clip at
+  frame ``t``, the expert blend of Table 2's PFNN-backbone models (Mason et al. 2018, Eq. 1);
 * output ``Y_t`` (``24 + 12 B + 18``; 342): trajectory x | z | direction x | z at ``t + 1 + 0 ..
   50`` (6 samples), then the joint features of frame ``t + 1``, all in ``C_t`` ("relative to the
   character's position in the input frame"); the next local phases ``P_{t+1}`` (8), their update
@@ -34,6 +36,7 @@ import numpy as np
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PAST_SAMPLES, sample_step, valid_frames
 from jaxstyle.errors import MotionDataError
 from jaxstyle.labels.local_phase import LocalPhases, local_phases
+from jaxstyle.labels.phase import global_phase as label_global_phase
 from jaxstyle.motion import Motion, kinematics, quat
 from jaxstyle.motion.character_frame import (
     CharacterFrames,
@@ -96,7 +99,7 @@ class LPNLayout:
 def bone_points(motion: Motion) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """``(B, 3)``-ready selection: joint indices of each bone's rotation, end-site indices used as
     extra points (into ``global_positions(end_sites=True)``), and the bone names."""
-    hands = find_feet_and_hands(motion.names, motion.source)["hands"]
+    hands = find_feet_and_hands(motion.names, motion.source, motion.joint_map)["hands"]
     hand_idx = set(motion.joint_indices(list(hands)))
     ends = [e for e, p in enumerate(motion.end_site_parents) if int(p) in hand_idx]
     names = list(motion.names) + [f"{motion.names[motion.end_site_parents[e]]}_End" for e in ends]
@@ -141,7 +144,8 @@ def _joint_features(pos, prev, rot, frames: CharacterFrames, index) -> np.ndarra
 @dataclass(frozen=True)
 class LPNFeatures:
     """LPN arrays of one clip: ``inputs (N, 348)``, ``phases (N, 8)``, ``outputs (N, 342)``,
-    ``frames (N,)`` (the clip frame of each row), ``clips (C, 240, 300)`` and ``clip_starts (C,)``."""
+    ``frames (N,)`` (the clip frame of each row), ``clips (C, 240, 300)``, ``clip_starts (C,)`` and
+    ``global_phase (N,)`` (the PFNN phase of each row's frame, in cycles)."""
 
     inputs: np.ndarray
     phases: np.ndarray
@@ -150,14 +154,18 @@ class LPNFeatures:
     clips: np.ndarray
     clip_starts: np.ndarray
     bones: tuple[str, ...]
+    global_phase: np.ndarray
 
 
 def encode_lpn(motion: Motion, *, phases: LocalPhases | None = None, frames: CharacterFrames | None = None,
-               clip_frames: int = CLIP_FRAMES, clip_stride: int = CLIP_STRIDE) -> LPNFeatures:
+               clip_frames: int = CLIP_FRAMES, clip_stride: int = CLIP_STRIDE,
+               global_phase_T: np.ndarray | None = None) -> LPNFeatures:
     """LPN inputs, local phases, outputs and style clips of a clip (see the module docstring).
 
-    ``phases`` defaults to :func:`jaxstyle.local_phases` with its defaults; a clip shorter than
-    ``clip_frames`` has no style clip (``clips`` is empty).
+    ``phases`` defaults to :func:`jaxstyle.local_phases` with its defaults; ``global_phase_T``
+    (``(T,)`` in cycles) to :func:`jaxstyle.labels.phase.global_phase` with its defaults (the
+    labeller of the 2018 datasets, so a PFNN backbone sees the same phase on both layouts); a
+    clip shorter than ``clip_frames`` has no style clip (``clips`` is empty).
     """
     t = valid_frames(motion.num_frames, motion.fps)
     if len(t) == 0:
@@ -170,6 +178,9 @@ def encode_lpn(motion: Motion, *, phases: LocalPhases | None = None, frames: Cha
     all_pos = np.concatenate([g_pos, kinematics.end_site_positions(motion, g_rot, g_pos)], axis=1)[:, points]
     all_rot = g_rot[:, rot_idx]
     frames = frames or character_frames(motion, positions_TxJx3=g_pos)
+    phi = label_global_phase(motion) if global_phase_T is None else np.asarray(global_phase_T, np.float64)
+    if phi.shape != (motion.num_frames,):
+        raise ValueError(f"global_phase_T must have shape ({motion.num_frames},), got {phi.shape}")
     s, t1 = sample_step(motion.fps), t + 1
     x = np.concatenate([trajectory_features(frames, t, np.arange(-PAST_SAMPLES, FUTURE_SAMPLES) * s),
                         _joint_features(all_pos[t], all_pos[t - 1], all_rot[t], frames, t)], axis=1)
@@ -185,10 +196,11 @@ def encode_lpn(motion: Motion, *, phases: LocalPhases | None = None, frames: Cha
     starts = np.arange(0, len(per_frame) - clip_frames + 1, clip_stride)
     clips = (np.stack([per_frame[a:a + clip_frames] for a in starts]) if len(starts)
              else np.zeros((0, clip_frames, per_frame.shape[1])))
-    for name, arr in (("inputs", x), ("outputs", y), ("local phases", p), ("style clips", clips)):
+    for name, arr in (("inputs", x), ("outputs", y), ("local phases", p), ("style clips", clips),
+                      ("global phases", phi)):
         if not np.isfinite(arr).all():
             raise MotionDataError(f"LPN {name} contain NaN or infinity", motion.source)
-    return LPNFeatures(x, p[t], y, t, clips, starts + 1, tuple(names))
+    return LPNFeatures(x, p[t], y, t, clips, starts + 1, tuple(names), phi[t])
 
 
 def decode_lpn(outputs: np.ndarray, skeleton: Motion, *, origin: np.ndarray | None = None,

@@ -4,16 +4,24 @@ Mason, Starke & Komura 2022 end to end, in the shape of :mod:`jaxstyle.mason2018
 folder in the 100STYLE layout (:mod:`jaxstyle.data.folders`):
 
 1. data: :func:`build_data` builds the LPN rows of the training styles and of the new styles (the
-   latter normalised later with the training styles' statistics, as both papers do);
-2. train: :func:`model_config` sizes one of Table 2's models (the LPN and MANN ones) for the data
-   and :func:`train_model` trains it into a folder (or resumes, or reloads it); :func:`model_losses`;
+   latter normalised later with the training styles' statistics, as both papers do), every row
+   with its local phases and its global phase; :func:`user_clip_data` makes the user's own BVH
+   clips the new styles;
+2. train: :func:`model_config` sizes any of Table 2's seven models for the data and
+   :func:`train_model` trains it into a folder (or resumes, or reloads it); :func:`train_for`
+   trains within a wall-clock :class:`Budget` (whole epochs, early stop once validation has
+   flattened); :func:`model_losses`;
 3. sweep: :func:`finetune_sweep` fine-tunes the FiLM generator alone for every (new style, dropout
    rate) pair in one compiled program, then tests every pair and the model before fine-tuning;
+   :func:`finetune_clips` adds a closed-loop check of every pair with the 2022 controller
+   (:func:`closed_loop_check`) and writes the chosen generators;
 4. select: :func:`choose_rates` keeps per new style the rate of the lowest validation MSE + bone-length
-   loss (a style without validation rows keeps the first rate);
-5. report: Markdown lines (:func:`losses_table`, :func:`models_table`, :func:`finetune_summary`,
-   :func:`finetune_table`) and files (:func:`write_finetune`: the generators and chosen rates;
-   :func:`film_figure`: the paper's Figure 11 with PCA).
+   loss (a style without validation rows keeps the first rate); :func:`choose_checked` the same
+   among the rates that passed the check;
+5. report: Markdown lines (:func:`losses_table`, :func:`models_table`, :func:`budget_table`,
+   :func:`ordering_lines`, :func:`finetune_summary`, :func:`finetune_table`, :func:`check_table`)
+   and files (:func:`write_finetune`: the generators and chosen rates; :func:`curves_figure`:
+   validation curves of several models; :func:`film_figure`: the paper's Figure 11 with PCA).
 
 ``jaxstyle lpn`` (:mod:`jaxstyle.cli.lpn`) and ``experiments/mason2022_styles.py`` are this pipeline.
 """
@@ -21,6 +29,7 @@ folder in the 100STYLE layout (:mod:`jaxstyle.data.folders`):
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import time
 import warnings
@@ -31,7 +40,7 @@ import jax
 import numpy as np
 
 from jaxstyle.data import datasets
-from jaxstyle.data.folders import PipelineError, clip_specs
+from jaxstyle.data.folders import PipelineError, clip_specs, user_clip_specs
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
@@ -60,11 +69,12 @@ class LPNData(NamedTuple):
 
 def build_data(root: Path, styles: Sequence[str], new_styles: Sequence[str] = (), *,
                gaits: Sequence[str] | None = None, max_seconds: float | None = None,
-               cache: str | os.PathLike | None = None, progress: bool = False) -> LPNData:
+               cache: str | os.PathLike | None = None, progress: bool = False, joint_map=None) -> LPNData:
     """LPN rows (cached) of ``styles`` and ``new_styles`` of the style folder ``root``
-    (:func:`jaxstyle.data.folders.clip_specs`: ``gaits``, ``max_seconds``); short clips skipped."""
+    (:func:`jaxstyle.data.folders.clip_specs`: ``gaits``, ``max_seconds``, ``joint_map``); short
+    clips skipped."""
     def build(names):
-        return datasets.build_lpn_dataset(clip_specs(root, names, gaits, max_seconds), cache_dir=cache,
+        return datasets.build_lpn_dataset(clip_specs(root, names, gaits, max_seconds, joint_map), cache_dir=cache,
                                           skip_short=True, progress=progress)
 
     with warnings.catch_warnings():
@@ -89,10 +99,17 @@ def model_config(dataset: datasets.Dataset, name: str = MODEL, *, hidden: int = 
                  filters: int = 256) -> StyleModelConfig:
     """Table 2's model ``name`` for the styles and layout of an LPN ``dataset``: ``hidden`` units
     (paper: 512), a FiLM generator of ``generator_hidden`` dense units (2048) and ``filters``
-    convolution filters (256) reading the dataset's style clips."""
+    convolution filters (256) reading the dataset's style clips.
+
+    Every backbone predicts the dataset's whole output row (342 values on 100STYLE), where the
+    paper's PFNN predicts 327 and its MANN 326 (:meth:`StyleModelConfig.paper`): with one output
+    layout the test MSE of the seven models is over the same values and so comparable; the extra
+    local-phase outputs of the PFNN and MANN rows are simply not fed back at runtime. The PFNN
+    backbones' expert blend is the row's global phase (:func:`jaxstyle.mason2022.train.style_data`)."""
     paper = StyleModelConfig.paper(name, len(dataset.styles))
-    if paper.backbone == "pfnn":
-        raise PipelineError(f"{name}: the PFNN backbone needs a global phase per row, which the LPN dataset lacks")
+    if paper.backbone == "pfnn" and len(dataset.global_phase) != len(dataset.inputs):
+        raise PipelineError(f"{name}: the PFNN backbone needs a global phase per row; this dataset (or its cache) "
+                            "has none: build it again with jaxstyle.data.datasets.build_lpn_dataset")
     gen = film.FiLMConfig(clip_frames=dataset.clips.shape[1], clip_features=dataset.clips.shape[2], filters=filters,
                           hidden=generator_hidden, film_size=4 * hidden)
     return dataclasses.replace(paper, hidden_size=hidden, input_size=dataset.inputs.shape[1],
@@ -100,18 +117,198 @@ def model_config(dataset: datasets.Dataset, name: str = MODEL, *, hidden: int = 
 
 
 def train_model(data: LPNData, config: StyleModelConfig, directory: str | os.PathLike, *, name: str = MODEL,
-                epochs: int = 6, progress: bool = True) -> Model:
+                epochs: int = 6, progress: bool = True, devices: str | int | None = None,
+                compute_dtype: str = "float32", **train_options) -> Model:
     """Train (or resume, or reload) a style model on the training styles into ``directory``
-    (:func:`jaxstyle.mason2022.train.train`: style-balanced batches, the paper's optimiser)."""
+    (:func:`jaxstyle.mason2022.train.train`: style-balanced batches, the paper's optimiser;
+    ``train_options``: other :class:`jaxstyle.mason2022.train.LPNTrainConfig` fields, e.g. the demo's
+    ``learning_rate``; ``devices`` / ``compute_dtype``: data-parallel devices and bfloat16 products,
+    as :func:`jaxstyle.mason2022.train.train`)."""
     style_data = train_lpn.style_data(data.base, data.skeleton, backbone=config.backbone)
-    state = train_lpn.train(style_data, train_lpn.LPNTrainConfig(model=config, epochs=epochs), directory,
-                            progress=progress)
+    write_data_file(data, directory, name)
+    state = train_lpn.train(style_data, train_lpn.LPNTrainConfig(model=config, epochs=epochs, **train_options),
+                            directory, progress=progress, devices=devices, compute_dtype=compute_dtype)
     return Model(name, config, state["params"], style_data)
+
+
+def write_data_file(data: LPNData, directory: str | os.PathLike, name: str = MODEL) -> Path:
+    """``directory/data.json``: the model's ``name`` and the clips of its training and new styles,
+    what :func:`jaxstyle.mason2022.synthesis.load_model` rebuilds the data (normalisers, style clips,
+    skeleton) from."""
+    path = Path(directory) / "data.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json_text({"name": name, "base": [dataclasses.asdict(s) for s in data.base.specs],
+                               "new": [] if data.new is None else [dataclasses.asdict(s) for s in data.new.specs]}))
+    return path
 
 
 def model_losses(model: Model, split: str = "test") -> dict[str, np.ndarray]:
     """``{"mse", "bll"}`` per training style on ``split``'s rows (bone-length loss in metres)."""
     return train_lpn.evaluate(model.params, model.config, model.data, split)
+
+
+# --- training within a time budget -------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """How :func:`train_for` spends a wall-clock budget: whole epochs while the next one (predicted
+    to last as long as the last one) still fits in ``seconds``, at least one, at most
+    ``max_epochs`` (the paper: 90), and stop early once validation has flattened: the best
+    validation loss (MSE + bone-length loss) of the last ``flat_epochs`` epochs is less than
+    ``flat_tolerance`` (relative) below the best of the epochs before them."""
+
+    seconds: float
+    max_epochs: int = 90
+    flat_epochs: int = 3
+    flat_tolerance: float = 0.01
+
+
+def read_log(directory: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The columns of a training run's ``log.csv`` (:func:`jaxstyle.mason2022.train.train`) as float
+    arrays, one value per epoch; empty when there is no log yet."""
+    import csv
+
+    path = Path(directory) / "log.csv"
+    if not path.is_file():
+        return {}
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    return {k: np.array([float(r[k]) if r[k] not in ("", None) else np.nan for r in rows]) for k in rows[0]} \
+        if rows else {}
+
+
+def flattened(validation_loss: Sequence[float], epochs: int = 3, tolerance: float = 0.01) -> bool:
+    """Whether the best of the last ``epochs`` losses is less than ``tolerance`` (relative) below
+    the best loss before them (needs at least ``epochs + 1`` values)."""
+    v = np.asarray(validation_loss, dtype=np.float64)
+    if len(v) <= epochs:
+        return False
+    before, last = np.nanmin(v[:-epochs]), np.nanmin(v[-epochs:])
+    return bool(last > (1.0 - tolerance) * before)
+
+
+class BudgetRun(NamedTuple):
+    """What :func:`train_for` did: the ``model``, ``epochs`` done (in all), ``seconds`` this call,
+    and why it stopped (``"flattened"``, ``"budget"`` or ``"max epochs"``)."""
+
+    model: Model
+    epochs: int
+    seconds: float
+    stopped: str
+
+
+def train_for(data: LPNData, config: StyleModelConfig, directory: str | os.PathLike, budget: Budget, *,
+              name: str = MODEL, progress: bool = True, train_config: dict | None = None) -> BudgetRun:
+    """Train a style model epoch by epoch (resuming ``directory``) within ``budget`` (:class:`Budget`).
+
+    Each epoch is one call of :func:`jaxstyle.mason2022.train.train` with ``stop_after_epochs=1``
+    (the compiled step is reused; the state comes back from the epoch's checkpoint), so the
+    budget is checked between epochs and a later call with a larger budget continues the run.
+    ``train_config``: further :class:`jaxstyle.mason2022.train.LPNTrainConfig` fields."""
+    import contextlib
+    import io
+
+    style_data = train_lpn.style_data(data.base, data.skeleton, backbone=config.backbone)
+    cfg = train_lpn.LPNTrainConfig(model=config, epochs=budget.max_epochs, **(train_config or {}))
+    write_data_file(data, directory, name)  # to reload the model with its data
+    t0 = time.perf_counter()
+    state, stopped, last_epoch_s = None, "max epochs", 0.0
+    while True:
+        e0 = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()):  # "resumed from step N" after every epoch
+            state = train_lpn.train(style_data, cfg, directory, progress=progress, stop_after_epochs=1)
+        last_epoch_s = time.perf_counter() - e0
+        log = read_log(directory)
+        epochs = int(state["epoch"])
+        if epochs >= budget.max_epochs:
+            stopped = "max epochs"
+            break
+        if log and flattened(log["val_mse"] + log["val_bll"], budget.flat_epochs, budget.flat_tolerance):
+            stopped = "flattened"
+            break
+        if time.perf_counter() - t0 + last_epoch_s > budget.seconds:
+            stopped = "budget"
+            break
+    return BudgetRun(Model(name, config, state["params"], style_data), int(state["epoch"]),
+                     time.perf_counter() - t0, stopped)
+
+
+def steps_per_epoch(data: train_lpn.StyleData, batch_size: int = 32) -> int:
+    """Steps of one style-balanced epoch (:func:`jaxstyle.data.batching.balanced_batches`)."""
+    from jaxstyle.data.batching import balanced_batches
+
+    return len(balanced_batches(data.train_rows, batch_size, seed=0))
+
+
+def budget_table(runs: dict[str, BudgetRun], logs: dict[str, dict[str, np.ndarray]]) -> list[str]:
+    """Markdown lines: per model the epochs it got in its budget and why it stopped, its minutes,
+    the last epoch's training MSE and validation MSE, its best validation MSE, and every model's
+    validation MSE at the epoch all of them reached (a comparison at equal epochs)."""
+    common = min((len(log["epoch"]) for log in logs.values() if log), default=0)
+    lines = [f"| model | epochs | stopped | minutes | train MSE (last epoch) | val MSE (last) | best val MSE | "
+             f"val MSE @ epoch {common} |", "|---|---|---|---|---|---|---|---|"]
+    for name, run in runs.items():
+        log = logs[name]
+        lines.append(f"| {name} | {run.epochs} | {run.stopped} | {run.seconds / 60:.1f} | {log['train_mse'][-1]:.4f} | "
+                     f"{log['val_mse'][-1]:.4f} | {np.nanmin(log['val_mse']):.4f} | "
+                     f"{log['val_mse'][common - 1]:.4f} |")
+    return lines
+
+
+def ordering_lines(results: dict[str, dict[str, np.ndarray]]) -> list[str]:
+    """Lines: the models ranked by mean test MSE + BLL, and whether the paper's two claims about
+    Figure 10 hold: every FiLM model has a lower test error than every one-hot and adapter model,
+    and PFNN Resad is below LPN Resad (the CP adapter's phase dependence)."""
+    total = {n: float(np.mean(r["mse"]) + np.mean(r["bll"])) for n, r in results.items()}
+    ranked = sorted(total, key=total.get)
+    lines = ["ranked by test MSE + BLL (lowest first): " + ", ".join(f"{n} {total[n]:.4f}" for n in ranked)]
+    film_models = [n for n in total if "FiLM" in n]
+    other = [n for n in total if "FiLM" not in n]
+    if film_models and other:
+        worst_film, best_other = max(film_models, key=total.get), min(other, key=total.get)
+        holds = total[worst_film] < total[best_other]
+        verdict = "holds" if holds else "does not hold"
+        lines.append(f"paper: every FiLM model below every one-hot / adapter model: {verdict}"
+                     f" (worst FiLM {worst_film} {total[worst_film]:.4f}, best other {best_other} "
+                     f"{total[best_other]:.4f})")
+    if {"PFNN Resad", "LPN Resad"} <= set(total):
+        holds = total["PFNN Resad"] < total["LPN Resad"]
+        lines.append(f"paper: PFNN Resad below LPN Resad: {'holds' if holds else 'does not hold'} "
+                     f"({total['PFNN Resad']:.4f} vs {total['LPN Resad']:.4f})")
+    return lines
+
+
+def curves_figure(logs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *, title: str = "") -> Path:
+    """One figure of validation curves of several runs (``{model: read_log(...)}``): validation MSE
+    against epochs (left) and against cumulative training minutes (right), log scale."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    for i, (name, log) in enumerate(logs.items()):
+        if not log:
+            continue
+        style = {"color": f"C{i}", "marker": "o", "markersize": 3, "label": name,
+                 "linestyle": "-" if "FiLM" in name else "--"}
+        a.plot(log["epoch"], log["val_mse"], **style)
+        b.plot(np.cumsum(log["seconds"]) / 60.0, log["val_mse"], **style)
+    a.set_xlabel("epoch")
+    b.set_xlabel("training minutes (2-core CPU, validation included)")
+    a.set_ylabel("validation MSE (normalised outputs)")
+    for ax in (a, b):
+        ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+    a.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 # --- sweep and select ---------------------------------------------------------------------------
@@ -184,6 +381,236 @@ def finetune_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FINE
                           chosen, new)
 
 
+# --- new styles from the user's own clips -------------------------------------------------------
+
+def user_clip_data(data: LPNData, clips: Sequence[str | os.PathLike], *, mirror: bool = True,
+                   seconds: tuple[float, float] | None = None, joint_map=None,
+                   cache: str | os.PathLike | None = None, progress: bool = False) -> LPNData:
+    """``data`` with its new styles replaced by the user's BVH ``clips`` (one new style per file,
+    named by its stem, mirrored unless ``mirror`` is false, ``seconds`` = (start, end) of each;
+    :func:`jaxstyle.data.folders.user_clip_specs`), as ``jaxstyle sweep --clip`` does for the 2018
+    adapters. A clip of another skeleton, or too short to give a style clip (240 frames) inside
+    its training rows and some validation rows, is refused in one line naming the file."""
+    specs = user_clip_specs(clips, mirror, seconds, joint_map)
+    names, base_file = tuple(data.skeleton.names), data.base.specs[0].path
+    for spec in specs:
+        if spec.mirror:
+            continue
+        motion = datasets.load_clip(spec)
+        if tuple(motion.names) != names:
+            detail = (f"{motion.num_joints} joints" if motion.num_joints != len(names) else
+                      "joint {} is {!r} where the model's is {!r}".format(
+                          *next((i, a, b) for i, (a, b) in enumerate(zip(motion.names, names, strict=True))
+                                if a != b)))
+            raise PipelineError(f"clip {spec.path}: its skeleton has {detail}; the model was trained on "
+                                f"{len(names)} joints ({base_file}): give a clip of the model's skeleton")
+        need = datasets.min_frames(motion.fps)
+        if motion.num_frames < need:
+            raise PipelineError(f"clip {spec.path}: {motion.num_frames} frames ({motion.num_frames / motion.fps:.1f} s)"
+                                f" are shorter than the trajectory window ({need} frames, {need / motion.fps:.1f} s)")
+    new = datasets.build_lpn_dataset(specs, cache_dir=cache, progress=progress)
+    for spec in specs:
+        if spec.mirror:
+            continue
+        frames = int(np.sum(new.clip == new.specs.index(spec)))
+        if len(new.clips_of_style(spec.style, "train")) == 0 or len(new.rows_of_style(spec.style, "validation")) == 0:
+            raise PipelineError(f"clip {spec.path}: {frames} rows give no {new.clips.shape[1]}-frame style clip inside "
+                                "its training rows (80% of the clip) or no validation rows: give a longer clip "
+                                f"(about {_min_clip_seconds(new.clips.shape[1]):.0f} s or more)")
+    return LPNData(data.base, new, data.skeleton)
+
+
+def _min_clip_seconds(clip_frames: int, fps: float = 60.0) -> float:
+    """A rough length that gives a style clip in the training block: the trajectory window, the
+    clip over the 80% training share, one clip stride for its alignment."""
+    return (datasets.min_frames(fps) + clip_frames / 0.8 + clip_frames / 2) / fps
+
+
+@dataclasses.dataclass(frozen=True)
+class ClosedLoopCheck:
+    """The closed-loop check of a fine-tuned new style: the 2022 controller
+    (:mod:`jaxstyle.control.lpn_controller`) drives it ``seconds`` along a path turning at
+    ``turn_deg_per_s`` at the clip's median speed, from a frame of the clip. It passes when the
+    rollout stays finite, the bones keep their lengths (mean relative error at most
+    ``max_bone_error``), the feet touch the floor at least ``min_contact_ratio`` times as often as
+    in the clip, they slide at most ``max_skating_ratio`` times (+ ``skating_slack_m_s``) as fast as
+    the model before fine-tuning does on the same path, and the character covers between
+    ``min_progress`` and ``1 / min_progress`` of the path's length (for styles that move). The
+    thresholds are those of the 2018 sweep's check (:class:`jaxstyle.mason2018.selection.RolloutCheck`;
+    the two papers' packages do not import each other)."""
+
+    seconds: float = 5.0
+    turn_deg_per_s: float = 45.0
+    max_bone_error: float = 0.10
+    min_contact_ratio: float = 0.5
+    max_skating_ratio: float = 1.5
+    skating_slack_m_s: float = 0.05
+    min_progress: float = 0.5
+    tolerance_m: float = 0.03
+
+
+CHECK_FIELDS = ("finite", "bone_error", "contact_fraction", "skating_m_s", "progress", "passed")
+
+
+def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
+                      check: ClosedLoopCheck = ClosedLoopCheck()) -> dict[str, np.ndarray]:
+    """Drive every (new style, rate) of a fine-tuning sweep and, per new style, the model before
+    fine-tuning, in ONE batched rollout; returns ``(S, R)`` arrays named by :data:`CHECK_FIELDS`
+    and per style ``(S,)`` references ``real_contact_fraction``, ``speed_m_s``,
+    ``base_skating_m_s``, ``base_bone_error`` (see :class:`ClosedLoopCheck`)."""
+    from jaxstyle.control import loop, lpn_controller
+    from jaxstyle.data.lpn_features import bone_points, end_effector_columns
+    from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
+    from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
+    from jaxstyle.motion.kinematics import UP_AXIS, global_positions
+    from jaxstyle.output import metrics
+
+    new, skeleton, raw = result.data, data.skeleton, data.new
+    upm, num_joints = estimate_units_per_meter(skeleton), skeleton.num_joints
+    num_bones, fps = len(bone_points(skeleton)[0]), float(skeleton.fps)
+    num_styles, num_rates = len(result.styles), len(result.rates)
+    frames = int(round(check.seconds * fps))
+    feet = list(FootJoints.find(skeleton).ankles) + list(FootJoints.find(skeleton).toes)
+    gen0 = model.params["style"]["generator"]
+    states, controls, styles = [], [], []
+    ref = {k: np.zeros(num_styles) for k in ("real_contact_fraction", "speed_m_s", "base_skating_m_s",
+                                            "base_bone_error")}
+    floors = []
+    for s in range(num_styles):
+        rows = new.train_rows[s]
+        first_clip = int(raw.clip[rows].min())
+        motion = datasets.load_clip(raw.specs[first_clip])
+        real = global_positions(motion)
+        floor = floor_heights(real[:, feet, UP_AXIS])
+        floors.append(floor)
+        ref["real_contact_fraction"][s] = metrics.positions_foot_stats(
+            real, skeleton, fps, floor, units_per_meter=upm, tolerance_m=check.tolerance_m).contact_fraction
+        y = raw.outputs[rows]
+        # the first future trajectory sample (x at 0, z at FUTURE_SAMPLES) is the next frame's root
+        speed = float(np.median(np.hypot(y[:, 0], y[:, FUTURE_SAMPLES]))) * fps
+        ref["speed_m_s"][s] = speed / upm
+        clip_rows = rows[raw.clip[rows] == first_clip]
+        start = clip_rows[np.argmin(raw.frame[clip_rows])]
+        state = lpn_controller.initial_state(raw.inputs[start], raw.phases[start], num_bones)
+        control = loop.turning_path(frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
+        clips = new.clips[new.train_clips[s]]
+        for r in range(num_rates + 1):  # the last: the model before fine-tuning
+            gen = gen0 if r == num_rates else jax.tree.map(lambda v, s=s, r=r: v[s, r], result.generators)
+            styles.append(film.clip_films(gen, clips).mean(axis=0))
+            states.append(state)
+            controls.append(control)
+
+    def stack(items):
+        return jax.tree.map(lambda *a: np.stack(a), *items)
+
+    cols = end_effector_columns(skeleton) if model.config.backbone == "mann" else None
+    out = lpn_controller.rollout_batch(model.params, model.config, np.stack(styles), *data.base.normalisers(),
+                                       stack(states), stack(controls), gate_columns=cols)
+    positions = np.asarray(out.positions)[:, :, :num_joints]
+    origin = np.asarray(out.origin)
+    finite_c = np.isfinite(positions).all(axis=(1, 2, 3)) & np.isfinite(np.asarray(out.outputs)).all(axis=(1, 2))
+    measures = {k: np.full((num_styles, num_rates + 1), np.nan) for k in CHECK_FIELDS[:-1]}
+    for c in range(len(styles)):
+        s, r = divmod(c, num_rates + 1)
+        measures["finite"][s, r] = float(finite_c[c])
+        if not finite_c[c]:
+            continue
+        stats = metrics.positions_foot_stats(positions[c], skeleton, fps, floors[s], units_per_meter=upm,
+                                             tolerance_m=check.tolerance_m)
+        travelled = float(np.sum(np.linalg.norm(np.diff(origin[c], axis=0), axis=-1)))
+        speed = ref["speed_m_s"][s] * upm
+        measures["bone_error"][s, r] = float(np.mean(metrics.bone_length_errors(positions[c], skeleton)))
+        measures["contact_fraction"][s, r] = stats.contact_fraction
+        measures["skating_m_s"][s, r] = stats.skating
+        measures["progress"][s, r] = travelled / (speed * check.seconds) if speed > 0 else np.nan
+    ref["base_skating_m_s"] = measures["skating_m_s"][:, -1]
+    ref["base_bone_error"] = measures["bone_error"][:, -1]
+    out_sr = {k: v[:, :-1] for k, v in measures.items()}
+    ok = out_sr["finite"].astype(bool)
+    base_skating, speed_m_s = ref["base_skating_m_s"][:, None], ref["speed_m_s"][:, None]
+    with np.errstate(invalid="ignore"):
+        ok &= out_sr["bone_error"] <= check.max_bone_error
+        ok &= out_sr["contact_fraction"] >= check.min_contact_ratio * ref["real_contact_fraction"][:, None]
+        ok &= ~np.isfinite(base_skating) | np.isnan(out_sr["skating_m_s"]) | (
+            out_sr["skating_m_s"] <= check.max_skating_ratio * base_skating + check.skating_slack_m_s)
+        progress = out_sr["progress"]
+        ok &= (speed_m_s < 0.1) | ((progress >= check.min_progress) & (progress <= 1.0 / check.min_progress))
+    out_sr["passed"] = ok.astype(float)
+    return {**out_sr, **ref}
+
+
+def choose_checked(validation_loss_SxR: np.ndarray, passed_SxR: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per style the rate index of the lowest finite validation loss among the rates that passed
+    the closed-loop check, else among all (as the 2018 sweep chooses); and whether it passed."""
+    val = np.where(np.isfinite(validation_loss_SxR), validation_loss_SxR, np.inf)
+    masked = np.where(np.asarray(passed_SxR, bool), val, np.inf)
+    any_pass = np.isfinite(masked).any(axis=1)
+    return np.where(any_pass, np.argmin(masked, axis=1), np.argmin(val, axis=1)).astype(np.int32), any_pass
+
+
+def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
+                   rates: Sequence[float] = FINETUNE_RATES, steps: int = 150, epochs: int = 100,
+                   check: ClosedLoopCheck = ClosedLoopCheck(), progress: bool = True
+                   ) -> tuple["FinetuneResult", dict[str, np.ndarray], dict[str, Path]]:
+    """New styles from the user's clips (``data.new``, :func:`user_clip_data`) the 2022 way: the
+    FiLM generator alone fine-tuned for every (clip style, rate) in one compiled sweep
+    (:func:`finetune_sweep`), every pair validated and driven closed-loop
+    (:func:`closed_loop_check`), a rate chosen per style (:func:`choose_checked`), and written to
+    ``directory``: :func:`write_finetune`'s files (every generator, ``chosen_rates.json`` with the
+    check), ``generators/<style>.npz`` (the chosen generator alone, :func:`load_generator` reads it)
+    and ``clips.json`` (the clips, the rates, the base clips: enough to rebuild the new styles' rows)."""
+    result = finetune_sweep(model, data, rates=rates, steps=steps, epochs=epochs, progress=progress)
+    checked = closed_loop_check(model, result, data, check)
+    val = result.after["validation"]["mse"] + result.after["validation"]["bll"]
+    chosen, passed = choose_checked(val, checked["passed"])
+    result = dataclasses.replace(result, chosen=chosen)
+    directory = Path(directory)
+    paths = write_finetune(result, directory)
+    saved = json.loads(paths["chosen"].read_text())
+    for s, style in enumerate(result.styles):
+        saved[style]["check_passed"] = bool(passed[s])
+        saved[style]["check"] = {k: _number(checked[k][s, chosen[s]]) for k in CHECK_FIELDS}
+    paths["chosen"].write_text(json_text(saved))
+    (directory / "generators").mkdir(parents=True, exist_ok=True)
+    for style in result.styles:
+        path = directory / "generators" / f"{style}.npz"
+        gen = result.params(model, style)["style"]["generator"]
+        np.savez(path, **{jax.tree_util.keystr(k): np.asarray(v) for k, v in jax.tree_util.tree_leaves_with_path(gen)})
+        paths[f"generator {style}"] = path
+    paths["clips"] = directory / "clips.json"
+    paths["clips"].write_text(json_text({"model": model.name, "rates": list(result.rates), "steps": result.steps,
+                                         "new": [dataclasses.asdict(s) for s in data.new.specs],
+                                         "base": [dataclasses.asdict(s) for s in data.base.specs]}))
+    return result, {**checked, "chosen_passed": passed}, paths
+
+
+def load_generator(path: str | os.PathLike, like: dict) -> dict:
+    """A generator written by :func:`finetune_clips` (``generators/<style>.npz``) in the tree
+    structure of ``like`` (the model's generator), e.g. to drive the new style later."""
+    with np.load(path) as z:
+        leaves = [z[jax.tree_util.keystr(k)] for k, _ in jax.tree_util.tree_leaves_with_path(like)]
+    return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(like), leaves)
+
+
+def check_table(result: "FinetuneResult", checked: dict[str, np.ndarray]) -> list[str]:
+    """Markdown lines: per clip style and rate the validation loss (``(fails)`` where the
+    closed-loop check fails), the chosen rate and its check's figures."""
+    rates = result.rates
+    val = result.after["validation"]["mse"] + result.after["validation"]["bll"]
+    lines = ["| clip style | val rows | " + " | ".join(f"val @ {r:g}" for r in rates)
+             + " | chosen | check | bone error | feet on floor (clip) | skating m/s (before) | progress |",
+             "|---|---|" + "---|" * len(rates) + "---|---|---|---|---|---|"]
+    for s, style in enumerate(result.styles):
+        c = int(result.chosen[s])
+        cells = [f"{val[s, r]:.4f}" + ("" if checked["passed"][s, r] else " (fails)") for r in range(len(rates))]
+        lines.append(f"| {style} | {len(result.data.val_rows[s])} | " + " | ".join(cells)
+                     + f" | {rates[c]:g} | {'passed' if checked['chosen_passed'][s] else 'FAILED'} | "
+                       f"{100 * checked['bone_error'][s, c]:.1f}% | {checked['contact_fraction'][s, c]:.2f} "
+                       f"({checked['real_contact_fraction'][s]:.2f}) | {checked['skating_m_s'][s, c]:.2f} "
+                       f"({checked['base_skating_m_s'][s]:.2f}) | {checked['progress'][s, c]:.2f} |")
+    return lines
+
+
 # --- report -------------------------------------------------------------------------------------
 
 def losses_table(styles: Sequence[str], losses: dict[str, np.ndarray]) -> list[str]:
@@ -209,9 +636,10 @@ def finetune_summary(result: FinetuneResult) -> str:
             f"{result.steps} steps each, one compiled sweep: {result.seconds:.0f} s")
 
 
-def finetune_table(result: FinetuneResult) -> list[str]:
+def finetune_table(result: FinetuneResult, *, checked: bool = False) -> list[str]:
     """Markdown lines: per new style its test MSE before and after fine-tuning at each rate, the
-    chosen rate and the test bone-length loss there; then the validation loss that chose it."""
+    chosen rate and the test bone-length loss there; then the validation loss that chose it
+    (``checked``: among the rates that passed the closed-loop check, :func:`finetune_clips`)."""
     rates, s_r = result.rates, range(len(result.rates))
     test, val = result.after["test"], result.after["validation"]
     lines = ["| new style | test MSE before | " + " | ".join(f"after @ {r:g}" for r in rates)
@@ -229,7 +657,9 @@ def finetune_table(result: FinetuneResult) -> list[str]:
         cells = [f"{val['mse'][s, r] + val['bll'][s, r]:.4f}" + (" (chosen)" if r == result.chosen[s] else "")
                  for r in s_r]
         lines.append(f"| {style} | {before:.4f} | " + " | ".join(cells) + " |")
-    lines.append("\n(the validation rows choose the rate; a style without validation rows keeps the first rate)")
+    lines.append("\n(the validation rows choose the rate among the rates that pass the closed-loop check, or among all "
+                 "when none passes)" if checked else
+                 "\n(the validation rows choose the rate; a style without validation rows keeps the first rate)")
     return lines
 
 

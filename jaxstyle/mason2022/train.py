@@ -36,9 +36,9 @@ from jaxstyle.data.lpn_features import LPNLayout, bone_parents, end_effector_col
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
-from jaxstyle.nn import lpn, style_models
+from jaxstyle.nn import lpn, pfnn, style_models
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.train import scan
+from jaxstyle.train import scan, shard
 from jaxstyle.train.checkpoint import Checkpointer
 from jaxstyle.train.defaults import FILM_DEFAULT_RATES
 
@@ -55,6 +55,23 @@ class LPNTrainConfig:
     bone_loss_weight: float = 1.0
     seed: int = 0
     log_every: int = 50
+
+
+PAPER_BATCH = 32
+
+
+def with_batch_size(config: LPNTrainConfig, batch_size: int) -> LPNTrainConfig:
+    """``config`` at another batch size with Adam's learning rate scaled by the square-root rule,
+    ``lr = lr_32 * sqrt(batch / 32)`` (Malladi et al. 2022, "On the SDEs and Scaling Rules for
+    Adaptive Gradient Algorithms": for Adam the noise scale is kept by scaling the rate with the
+    square root of the batch, where SGD's linear rule overshoots). Not the paper's setting (batch
+    32, 1e-4): a FiLM step reads ONE style clip whatever the batch, so a batch of 128 does the
+    generator's work (most of a step, ``benchmarks/lpn_training.py``) once per 128 rows instead of
+    per 32, an epoch of a quarter of the steps."""
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be positive, got {batch_size}")
+    lr = config.learning_rate * (batch_size / config.batch_size) ** 0.5
+    return dataclasses.replace(config, batch_size=int(batch_size), learning_rate=float(lr))
 
 
 class BonePositions(NamedTuple):
@@ -82,14 +99,25 @@ class StyleData(NamedTuple):
     bones: BonePositions
 
 
+def global_phase_rows(dataset) -> np.ndarray:
+    """``(N,)`` the global phase of every row of an LPN dataset (the PFNN backbone's gate); an
+    error naming the fix when the dataset was built (or cached) without it."""
+    phase = np.asarray(getattr(dataset, "global_phase", np.zeros(0)))
+    if len(phase) != len(dataset.inputs):
+        raise ValueError(f"the dataset has {len(phase)} global phases for {len(dataset.inputs)} rows: build it "
+                         "again with jaxstyle.data.datasets.build_lpn_dataset (its cache predates the global phase)")
+    return phase
+
+
 def style_data(dataset, skeleton: Motion, *, backbone: str = "lpn", styles: Sequence[str] | None = None,
                base=None, gate: np.ndarray | None = None) -> StyleData:
     """Arrays for training or testing on ``styles`` (default all) of an LPN dataset.
 
     ``skeleton``: a clip of the dataset's skeleton (bone parents and units). ``base``: normalise
     with another dataset's statistics (a new style with the base model's, as both papers do).
-    The gating input is the 8 local-phase values (``"lpn"``) or the 12 end-effector velocity
-    inputs (``"mann"``); the PFNN backbone needs a global phase per row, given as ``gate``.
+    The gating input (unless ``gate`` gives one per row) is the 8 local-phase values (``"lpn"``),
+    the 12 end-effector velocity inputs (``"mann"``) or the global phase in cycles (``"pfnn"``,
+    ``(N, 1)``: the dataset's ``global_phase``, :func:`jaxstyle.global_phase` of each row's frame).
     """
     styles = tuple(dataset.styles if styles is None else styles)
     layout = LPNLayout((dataset.inputs.shape[1] - 48) // 12)
@@ -102,8 +130,10 @@ def style_data(dataset, skeleton: Motion, *, backbone: str = "lpn", styles: Sequ
             gate = dataset.phases
         elif backbone == "mann":
             gate = x[:, end_effector_columns(skeleton)]
+        elif backbone == "pfnn":
+            gate = global_phase_rows(dataset)[:, None]
         else:
-            raise ValueError("the PFNN backbone needs a global phase per row: pass gate=phase_N")
+            raise ValueError(f"unknown backbone {backbone!r}")
     gate = np.asarray(gate, np.float32)
     if len(gate) != len(x):
         raise ValueError(f"gate has {len(gate)} rows, the dataset {len(x)}")
@@ -168,19 +198,49 @@ def init_state(key: jax.Array, config: LPNTrainConfig) -> dict:
             "epoch": jnp.zeros((), jnp.int32)}
 
 
-@functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate"))
-def _train_chunk(params, opt_state, arrays, batches_TxB, styles_T, clips_T, keys_T, rate, weight, *,
-                 config: StyleModelConfig, bones: BonePositions, learning_rate: float):
-    """Steps of full training (:func:`jaxstyle.train.scan.train_scan`, no masked step); per step
-    ``(loss, mse, bll)``."""
-    def loss_fn(p, inputs, key):
-        idx, style, clip = inputs
-        return batch_loss(p, config, arrays, idx, style, clip, key, rate, _bones(bones), weight)
+COMPUTE_DTYPES = ("float32", "bfloat16")
 
-    params, opt_state, (value, parts) = scan.train_scan(
-        loss_fn, params, opt_state, (batches_TxB, styles_T, clips_T), jnp.ones(len(batches_TxB), bool), keys_T,
-        learning_rate=learning_rate, has_aux=True)
-    return params, opt_state, jnp.stack([value, *parts], axis=1)
+
+def _step_loss(params, config: StyleModelConfig, arrays, inputs, key, rate, weight, bones, compute_dtype: str):
+    """One step's loss; ``compute_dtype="bfloat16"`` casts every weight matrix to bfloat16 for the
+    products (accumulated in float32: :func:`jaxstyle.nn.pfnn.pf_dense`,
+    :func:`jaxstyle.nn.film_generator.generator_apply`), the float32 master weights get float32
+    gradients through the cast and Adam runs in float32 (mixed precision, Micikevicius et al. 2018)."""
+    idx, style, clip = inputs
+    if compute_dtype != "float32":
+        params = pfnn.cast_weights(params, jnp.dtype(compute_dtype))
+    return batch_loss(params, config, arrays, idx, style, clip, key, rate, _bones(bones), weight)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate", "compute_dtype"),
+                   donate_argnames=("params", "opt_state"))
+def _train_chunk(params, opt_state, arrays, batches_TxB, styles_T, clips_T, keys_T, rate, weight, *,
+                 config: StyleModelConfig, bones: BonePositions, learning_rate: float, compute_dtype: str = "float32"):
+    """Steps of full training as one ``lax.scan``: per step the gradient of :func:`batch_loss` and
+    an ``optax.adam(learning_rate)`` update; returns the new parameters, optimiser state and per
+    step ``(loss, mse, bll)``.
+
+    The same steps as :func:`jaxstyle.train.scan.train_scan` (the fine-tuning sweeps' driver, kept
+    as the reference in ``tests/test_lpn_fast.py``) with two changes that do not change a value:
+    no padded-step mask (full training has none; the mask's ``where`` kept the old and new
+    39 M-value trees alive together) and the parameters and Adam state are DONATED, so XLA updates
+    them in place instead of writing 3 x 177 MB of fresh buffers per call. On this 2-core CPU fresh
+    memory is costly: a donated Adam update of LPN-FiLM's 44 M values ran ~9x faster than an
+    undonated one (the kernel zero-fills every new page; ``docs/mason2022.md``, "Training
+    speed"). The caller's
+    ``params`` and ``opt_state`` are consumed."""
+    optimiser = optax.adam(learning_rate)
+
+    def step(carry, inputs):
+        p, opt = carry
+        *step_inputs, key = inputs
+        (value, (mse, bll)), grads = jax.value_and_grad(_step_loss, has_aux=True)(
+            p, config, arrays, step_inputs, key, rate, weight, bones, compute_dtype)
+        updates, opt = optimiser.update(grads, opt, p)
+        return (optax.apply_updates(p, updates), opt), jnp.stack([value, mse, bll])
+
+    (params, opt_state), out = jax.lax.scan(step, (params, opt_state), (batches_TxB, styles_T, clips_T, keys_T))
+    return params, opt_state, out
 
 
 class _Static:
@@ -218,28 +278,42 @@ def epoch_batches(data: StyleData, config: LPNTrainConfig, epoch: int) -> tuple[
 
 
 def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None = None, *, progress: bool = True,
-          stop_after_epochs: int | None = None) -> dict:
+          stop_after_epochs: int | None = None, compute_dtype: str = "float32",
+          devices: str | int | None = None) -> dict:
     """Train (or resume) a style model; returns ``{"params", "opt_state", "epoch"}``.
 
     ``directory`` keeps ``config.json``, orbax checkpoints (one per epoch, the last 3 kept) and
     ``log.csv`` (train loss, MSE and BLL, validation MSE and BLL, seconds per epoch); a second call
     with the same directory resumes from the last checkpoint. ``stop_after_epochs`` ends the call
-    early (to test resuming)."""
+    early (to test resuming).
+
+    ``compute_dtype="bfloat16"``: the layer products in bfloat16, accumulated in float32, float32
+    master weights and Adam (an option, not the paper's setting; recorded in ``config.json``).
+    ``devices="all"`` (or a count): data-parallel over that many devices
+    (:mod:`jaxstyle.train.shard`: each batch's rows split over the devices, the parameters
+    replicated); the batch size must divide by the device count. The result equals the one-device
+    run up to the order of float sums, so a run may resume on another device count."""
     if config.model.num_styles != len(data.styles):
         raise ValueError(f"the model has {config.model.num_styles} styles, the data {len(data.styles)}")
-    arrays = _device_arrays(data)
+    if compute_dtype not in COMPUTE_DTYPES:
+        raise ValueError(f"compute_dtype must be one of {COMPUTE_DTYPES}, got {compute_dtype!r}")
+    mesh = shard.data_mesh(devices)
+    shard.check_batch(mesh, config.batch_size)
+    arrays = shard.replicate(_device_arrays(data), mesh)
     bones = _Static(data.bones)
 
     def plan_epoch(epoch):
         batches, styles, clips = epoch_batches(data, config, epoch)
         keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(config.seed), epoch), len(batches))
+        batches_dev = shard.shard_batches(batches, mesh)
+        styles_dev, clips_dev, keys = shard.replicate((jnp.asarray(styles), jnp.asarray(clips), keys), mesh)
 
         def run_chunk(state, a, b):
+            params, opt_state = shard.replicate((state["params"], state["opt_state"]), mesh)
             params, opt_state, out = _train_chunk(
-                state["params"], state["opt_state"], arrays, jnp.asarray(batches[a:b]), jnp.asarray(styles[a:b]),
-                jnp.asarray(clips[a:b]), keys[a:b], jnp.float32(config.dropout_rate),
-                jnp.float32(config.bone_loss_weight), config=config.model, bones=bones,
-                learning_rate=config.learning_rate)
+                params, opt_state, arrays, batches_dev[a:b], styles_dev[a:b], clips_dev[a:b], keys[a:b],
+                jnp.float32(config.dropout_rate), jnp.float32(config.bone_loss_weight), config=config.model,
+                bones=bones, learning_rate=config.learning_rate, compute_dtype=compute_dtype)
             return {**state, "params": params, "opt_state": opt_state}, out
 
         return len(batches), run_chunk
@@ -251,14 +325,24 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
                 "val_bll": f"{np.nanmean(val['bll']):.6f}"}
 
     return scan.fit(init_state(jax.random.PRNGKey(config.seed), config), config.epochs, plan_epoch,
-                    directory=directory, run_config={"train": config, "styles": list(data.styles)},
+                    directory=directory, run_config=_run_config(config, data.styles, compute_dtype),
                     log_every=config.log_every, end_epoch=end_epoch, progress=progress,
                     stop_after_epochs=stop_after_epochs)
 
 
-def load(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str]) -> dict:
+def _run_config(config: LPNTrainConfig, styles: Sequence[str], compute_dtype: str = "float32") -> dict:
+    """``config.json`` of a run: the compute dtype only when it is not float32, so the run folders
+    of float32 runs made before the option existed still resume and load."""
+    run = {"train": config, "styles": list(styles)}
+    if compute_dtype != "float32":
+        run["compute_dtype"] = compute_dtype
+    return run
+
+
+def load(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str], *,
+         compute_dtype: str = "float32") -> dict:
     """The last checkpoint of a :func:`train` run folder."""
-    ckpt = Checkpointer(directory, {"train": config, "styles": list(styles)})
+    ckpt = Checkpointer(directory, _run_config(config, styles, compute_dtype))
     try:
         return ckpt.restore(init_state(jax.random.PRNGKey(config.seed), config))
     finally:

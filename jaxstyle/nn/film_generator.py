@@ -64,10 +64,40 @@ def init_generator(key: jax.Array, config: FiLMConfig = FiLMConfig()) -> dict:
             "dense2": {"W": glorot(k4, (c.hidden, c.film_size), jnp.float32), "b": zeros(c.film_size)}}
 
 
+IM2COL_VALUES = 1 << 24
+"""Up to this many patch values (batch x frames x width x channels) :func:`_conv` is one matrix
+product of the clip's patches (im2col); above it (a batch of clips at test time) XLA's convolution."""
+
+
 def _conv(layer: dict, x_BxTxC: jax.Array) -> jax.Array:
-    out = jax.lax.conv_general_dilated(x_BxTxC, layer["W"], window_strides=(1,), padding="SAME",
-                                       dimension_numbers=("NWC", "WIO", "NWC"))
+    """'Same' 1-D convolution (the kernel centred, ``(width - 1) // 2`` frames of zeros before);
+    products in the kernel's dtype (bfloat16 for mixed-precision training,
+    :func:`jaxstyle.mason2022.train.train`), accumulated and returned in float32.
+
+    A training step convolves ONE clip: there the convolution is the product of the clip's
+    ``(T, width x C)`` patches with the ``(width x C, F)`` kernel, whose gradients are two plain
+    products. XLA's convolution gives the same values, but on CPU the gradients of the two
+    convolutions of one clip took ~85% of an LPN-FiLM step with it (1.75 of 2.0 s;
+    ``benchmarks/lpn_training.py``, ``docs/mason2022.md``, "Training speed")."""
+    w = layer["W"]
+    width, channels, filters = w.shape
+    b, t, _ = x_BxTxC.shape
+    x = x_BxTxC.astype(w.dtype)
+    if b * t * width * channels > IM2COL_VALUES:
+        out = jax.lax.conv_general_dilated(x, w, window_strides=(1,), padding="SAME",
+                                           dimension_numbers=("NWC", "WIO", "NWC"), preferred_element_type=jnp.float32)
+        return out + layer["b"]
+    lo = (width - 1) // 2
+    xp = jnp.pad(x, ((0, 0), (lo, width - 1 - lo), (0, 0)))
+    patches_BxTxWC = jnp.concatenate([xp[:, i:i + t] for i in range(width)], axis=-1)
+    out = jnp.matmul(patches_BxTxWC, w.reshape(width * channels, filters), preferred_element_type=jnp.float32)
     return out + layer["b"]
+
+
+def _dense(layer: dict, h_BxI: jax.Array) -> jax.Array:
+    """``h W + b``, the product in ``W``'s dtype accumulated in float32 (as :func:`_conv`)."""
+    w = layer["W"]
+    return jnp.matmul(h_BxI.astype(w.dtype), w, preferred_element_type=jnp.float32) + layer["b"]
 
 
 def _max_pool2(x_BxTxC: jax.Array) -> jax.Array:
@@ -87,9 +117,9 @@ def generator_apply(params: dict, clip_BxTxC: jax.Array, *, key: jax.Array | Non
         raise ValueError(f"clips must have {frames} frames, got {clip_BxTxC.shape[1]}")
     h = _max_pool2(jax.nn.relu(_conv(params["conv1"], clip_BxTxC)))
     h = _max_pool2(jax.nn.relu(_conv(params["conv2"], h)))
-    h = jax.nn.relu(h.reshape(h.shape[0], -1) @ params["dense1"]["W"] + params["dense1"]["b"])
+    h = jax.nn.relu(_dense(params["dense1"], h.reshape(h.shape[0], -1)))
     h = pfnn.dropout(jax.random.PRNGKey(0) if key is None else key, h, dropout_rate)
-    return h @ params["dense2"]["W"] + params["dense2"]["b"]
+    return _dense(params["dense2"], h)
 
 
 _generate = jax.jit(generator_apply)

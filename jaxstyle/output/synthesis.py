@@ -127,12 +127,38 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
     rollouts = jax.block_until_ready(controller.rollout_batch(*args))
     elapsed = time.perf_counter() - t0
 
+    rows, files = write_results(out, characters, pairs, signals, rollouts, skeleton, foot_ik=foot_ik, gif=gif,
+                                mp4=mp4, every=every, contact_sheet=contact_sheet, reference=reference,
+                                progress=progress)
+    return SynthesisResult(rows, files, elapsed, len(pairs) * int(rollouts.positions.shape[1]),
+                           dict(zip([c.title for c in characters], speeds, strict=True)))
+
+
+def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[int, str]], signals: Sequence,
+                  rollouts, skeleton: Motion, *, foot_ik: bool = False, gif: bool = True, mp4: bool = False,
+                  every: int = 2, contact_sheet: bool = False, reference: bool = True,
+                  progress: bool = False) -> tuple[list[dict], list[Path]]:
+    """What both papers' syntheses write, from a batched rollout of either controller (a
+    :class:`jaxstyle.control.controller.Rollout` or a :class:`jaxstyle.control.lpn_controller.LPNRollout`,
+    leading axis ``len(pairs)``): per path a GIF (and MP4, contact sheet), per (character, path) the
+    :mod:`jaxstyle.output.metrics` row, the BVH and ``.npz``, the real clips' rows, ``quality.csv``.
+
+    ``characters``: anything with ``title``, ``label``, ``dataset`` and ``style`` (:class:`Character`,
+    :class:`jaxstyle.output.lpn_synthesis.LPNCharacter`); ``pairs``: ``(character index, path name)``
+    of each rollout; ``signals``: the :class:`jaxstyle.control.paths.PathSignal` of each pair. The
+    metrics read the skeleton's joints (the LPN's extra hand points are left out), with the same
+    functions for both models. Returns the quality rows and the files written."""
+    out = Path(out)
+    upm = estimate_units_per_meter(skeleton)
+    fps = skeleton.fps
+    path_names = list(dict.fromkeys(p for _, p in pairs))
+    joints = skeleton.num_joints
     out.mkdir(parents=True, exist_ok=True)
     files, rows = [], []
     titles = [c.title for c in characters]
     for p in path_names:
         idx = [k for k, (_, q) in enumerate(pairs) if q == p]
-        chars = [np.asarray(rollouts.positions[k]) for k in idx]
+        chars = [np.asarray(rollouts.positions[k][:, :joints]) for k in idx]
         path_xz = [signals[k].positions for k in idx]
         kwargs = dict(titles=titles, paths=path_xz, units_per_meter=upm, every=every, progress=progress)
         if gif:
@@ -145,7 +171,7 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
     for k, (s, p) in enumerate(pairs):
         one = jax.tree.map(lambda v, k=k: v[k], rollouts)
         c = characters[s]
-        q = metrics.motion_quality(np.asarray(one.positions), skeleton, fps, units_per_meter=upm,
+        q = metrics.motion_quality(np.asarray(one.positions)[:, :joints], skeleton, fps, units_per_meter=upm,
                                    path_Tx2=signals[k].positions)
         row = {"style": c.title, "path": p, **q.as_row()}
         if np.isfinite(np.asarray(one.outputs)).all():
@@ -169,8 +195,7 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
             q = metrics.reference_quality(datasets.load_clip(spec, fps=fps), units_per_meter=upm)
             rows.append({"style": c.title, "path": f"real ({Path(spec.path).name})", **q.as_row()})
     files.append(write_quality(rows, out / "quality.csv"))
-    return SynthesisResult(rows, files, elapsed, len(pairs) * int(rollouts.positions.shape[1]),
-                           dict(zip(titles, speeds, strict=True)))
+    return rows, files
 
 
 def write_quality(rows: list[dict], path: Path) -> Path:

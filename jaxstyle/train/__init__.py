@@ -2,4 +2,4 @@
 
 from jaxstyle._lazy import lazy_module
 
-__getattr__, __dir__ = lazy_module(__name__, ["checkpoint", "defaults", "runlog", "scan"])
+__getattr__, __dir__ = lazy_module(__name__, ["checkpoint", "defaults", "runlog", "scan", "shard"])

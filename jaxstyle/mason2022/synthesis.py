@@ -1,0 +1,191 @@
+"""Characters from the trained 2022 style models: reload a model with its data, pick styles, blend
+them, and drive them along paths (Mason, Starke & Komura 2022, section 4.4).
+
+1. :func:`load_model` reloads a model trained by :func:`jaxstyle.mason2022.pipeline.train_model`
+   (``jaxstyle lpn`` writes one into ``RUN/lpn``): its config and weights from the checkpoint folder
+   (``config.json``), its training and new styles' clips from ``data.json`` (the LPN rows, their
+   normalisers, the style clips and the skeleton are rebuilt from them, from the cache when there
+   is one);
+2. :func:`characters`: training styles (their runtime style: for FiLM the mean FiLM vector of the
+   style's training clips, as :func:`jaxstyle.mason2022.train.evaluate` and the paper's runtime
+   use; otherwise the style's one-hot row or adapter), new styles fine-tuned by the FiLM sweep
+   (``finetuned_generators.npz`` at the rate of ``chosen_rates.json``: the FiLM vector of the new
+   style's training clips under its fine-tuned generator), and a 2- or 3-way blend of the first
+   characters (:func:`jaxstyle.output.lpn_synthesis.blend_character`, section 4.4's interpolation);
+3. :func:`synthesize`: :func:`jaxstyle.output.lpn_synthesis.synthesize` (one batched rollout; GIF,
+   BVH files, the quality table of the 2018 path).
+
+``jaxstyle synthesize --model lpn-film`` and ``jaxstyle demo --model lpn-film`` are this module.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import warnings
+from pathlib import Path
+from typing import NamedTuple, Sequence
+
+import jax
+import numpy as np
+
+from jaxstyle.data import datasets
+from jaxstyle.data.datasets import ClipSpec
+from jaxstyle.data.folders import PipelineError
+from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import train as train_lpn
+from jaxstyle.nn import film_generator as film
+from jaxstyle.nn import style_models
+from jaxstyle.nn.style_models import StyleModelConfig
+from jaxstyle.output import lpn_synthesis
+from jaxstyle.output.lpn_synthesis import LPNCharacter
+from jaxstyle.output.synthesis import SynthesisResult
+
+MODELS = {"lpn-film": "LPN FiLM", "lpn-onehot": "LPN One-hot", "lpn-resad": "LPN Resad", "mann-film": "MANN FiLM",
+          "pfnn-film": "PFNN FiLM", "pfnn-onehot": "PFNN One-hot", "pfnn-resad": "PFNN Resad"}
+"""The ``--model`` names of the 2022 models (Table 2's names as values)."""
+
+
+def model_key(name: str) -> str:
+    """The ``--model`` key of a Table 2 model name (``"LPN FiLM"`` -> ``"lpn-film"``)."""
+    return {v: k for k, v in MODELS.items()}[name]
+
+
+class Loaded(NamedTuple):
+    """A reloaded model: the :class:`jaxstyle.mason2022.pipeline.Model`, its :class:`LPNData`
+    (training styles, new styles or ``None``, a skeleton clip), the folder and the epochs trained."""
+
+    model: pipeline.Model
+    data: pipeline.LPNData
+    directory: Path
+    epochs: int
+
+
+def _dataclass(cls, values: dict):
+    """``cls(**values)`` keeping only ``cls``'s fields (configs written by other versions)."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    return cls(**{k: v for k, v in values.items() if k in names})
+
+
+def train_config(saved: dict) -> train_lpn.LPNTrainConfig:
+    """The :class:`jaxstyle.mason2022.train.LPNTrainConfig` written to a run folder's ``config.json``."""
+    model = dict(saved["model"])
+    model["generator"] = _dataclass(film.FiLMConfig, model["generator"])
+    cfg = dict(saved, model=_dataclass(StyleModelConfig, model))
+    return _dataclass(train_lpn.LPNTrainConfig, cfg)
+
+
+def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None = None,
+               progress: bool = False) -> Loaded:
+    """The style model trained into ``directory`` by :func:`jaxstyle.mason2022.pipeline.train_model`,
+    with its data rebuilt from the clips listed in ``data.json`` (LPN rows cached in ``cache``).
+    A folder without a finished checkpoint, or whose clips changed, is refused in one line."""
+    directory = Path(directory)
+    for name in ("config.json", "data.json"):
+        if not (directory / name).is_file():
+            raise PipelineError(f"no trained 2022 model in {directory} (no {name}): train one with "
+                                "`jaxstyle lpn --data PATH --run RUN` (or `jaxstyle demo --model lpn-film`)")
+    saved = json.loads((directory / "config.json").read_text())
+    meta = json.loads((directory / "data.json").read_text())
+    config = train_config(saved["train"])
+    styles = tuple(saved["styles"])
+
+    def build(specs):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # short clips are skipped with a warning, as in training
+            return datasets.build_lpn_dataset([ClipSpec(**s) for s in specs], cache_dir=cache, skip_short=True,
+                                              progress=progress)
+
+    base = build(meta["base"])
+    if tuple(base.styles) != styles:
+        raise PipelineError(f"{directory}: the clips of data.json give styles {', '.join(base.styles)}, "
+                            f"the model was trained on {', '.join(styles)}")
+    new = build(meta["new"]) if meta.get("new") else None
+    data = pipeline.LPNData(base, new, datasets.load_clip(base.specs[0]))
+    if config.model.backbone == "pfnn":
+        raise PipelineError(f"{directory}: {meta.get('name', 'the model')} has the PFNN backbone; the 2022 "
+                            "controller drives the LPN and MANN backbones (the PFNN-backbone rows need a global "
+                            "phase per row)")
+    try:
+        state = train_lpn.load(directory, config, styles)
+    except FileNotFoundError:
+        raise PipelineError(f"{directory} has no checkpoint yet: finish training it first") from None
+    style_data = train_lpn.style_data(base, data.skeleton, backbone=config.model.backbone)
+    model = pipeline.Model(meta.get("name", pipeline.MODEL), config.model, state["params"], style_data)
+    return Loaded(model, data, directory, int(state["epoch"]))
+
+
+def _generators(model: pipeline.Model, path: Path) -> dict:
+    """The fine-tuned generators of :func:`jaxstyle.mason2022.pipeline.write_finetune` (leading axes
+    (new style, rate)) in the tree structure of ``model``'s generator."""
+    like = model.params["style"]["generator"]
+    with np.load(path) as z:
+        leaves = [z[jax.tree_util.keystr(p)] for p, _ in jax.tree_util.tree_leaves_with_path(like)]
+    return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(like), leaves)
+
+
+def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequence[str] = (),
+               finetune_dir: str | os.PathLike | None = None, blend: Sequence[float] | None = None
+               ) -> list[LPNCharacter]:
+    """:class:`~jaxstyle.output.lpn_synthesis.LPNCharacter` s: training ``styles``, ``new_styles``
+    fine-tuned by the FiLM sweep (``finetune_dir``: default the model's folder) at their chosen rate,
+    and with ``blend`` (2 or 3 barycentric weights) a blend of the first 2 or 3 of them."""
+    model, data = loaded.model, loaded.data
+    film_model = model.config.modulation == "film"
+    out = []
+    if styles:
+        vectors = train_lpn.film_vectors(model.params, model.data) if film_model else None
+        for name in styles:
+            if name not in model.data.styles:
+                raise PipelineError(f"unknown style {name!r}; the model has {', '.join(model.data.styles)}")
+            s = model.data.styles.index(name)
+            runtime = vectors[s] if film_model else style_models.style_runtime(model.params, model.config, s)
+            out.append(LPNCharacter(name, name, runtime, data.base, name))
+    if new_styles:
+        folder = Path(finetune_dir or loaded.directory)
+        files = [folder / "chosen_rates.json", folder / "finetuned_generators.npz"]
+        if not film_model:
+            raise PipelineError(f"{model.name}: only a FiLM model learns new styles (its generator is fine-tuned)")
+        if data.new is None or not all(f.is_file() for f in files):
+            raise PipelineError(f"no fine-tuned new styles in {folder}: run `jaxstyle lpn` with --finetune-steps > 0")
+        chosen = json.loads(files[0].read_text())
+        new = train_lpn.style_data(data.new, data.skeleton, base=data.base, backbone=model.config.backbone)
+        gens = _generators(model, files[1])
+        for name in new_styles:
+            if name not in chosen or name not in new.styles:
+                raise PipelineError(f"unknown new style {name!r}; {folder} has {', '.join(chosen) or 'none'}")
+            s = new.styles.index(name)
+            gen = jax.tree.map(lambda v, s=s, r=int(chosen[name]["rate_index"]): v[s, r], gens)
+            runtime = film.clip_films(gen, new.clips[new.train_clips[s]]).mean(axis=0)
+            out.append(LPNCharacter(f"{name} (fine-tuned, rate {chosen[name]['rate']:g})", name, runtime, data.new,
+                                    name))
+    if blend is not None:
+        k = len(blend)
+        if len(out) < k:
+            raise PipelineError(f"a blend of {k} styles needs {k} styles to blend, got {len(out)}")
+        try:
+            out.append(lpn_synthesis.blend_character(model.config, out[:k], blend))
+        except ValueError as e:
+            raise PipelineError(f"blend weights {list(blend)}: {e}") from None
+    if not out:
+        raise PipelineError("no styles to drive")
+    return out
+
+
+def synthesize(loaded: Loaded, chars: Sequence[LPNCharacter], directory: str | os.PathLike, *,
+               paths: Sequence[str] = ("circle",), seconds: float = 8.0, speed: float | None = None,
+               foot_ik: bool = False, gif: bool = True, mp4: bool = False, every: int = 2,
+               progress: bool = True) -> SynthesisResult:
+    """``chars`` along ``paths`` in one batched rollout of the loaded model, written to ``directory``
+    (:func:`jaxstyle.output.lpn_synthesis.synthesize`: GIFs, BVH files, a contact sheet, quality.csv)."""
+    return lpn_synthesis.synthesize(loaded.model.params, loaded.model.config, loaded.data.base.normalisers(), chars,
+                                    loaded.data.skeleton, Path(directory), path_names=list(paths), seconds=seconds,
+                                    speed=speed, foot_ik=foot_ik, gif=gif, mp4=mp4, every=every, contact_sheet=gif,
+                                    progress=progress)
+
+
+def rollout_summary(result: SynthesisResult, num_characters: int, num_paths: int) -> str:
+    """One line: characters x paths, frames and speed of the batched rollout (as the 2018 path's)."""
+    return (f"{num_characters} characters x {num_paths} paths, {result.frames:,} frames in one batched rollout: "
+            f"{result.seconds:.2f} s ({result.frames / max(result.seconds, 1e-9):,.0f} frames/s)")

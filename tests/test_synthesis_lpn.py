@@ -1,0 +1,155 @@
+"""Characters from a trained 2022 model (:mod:`jaxstyle.mason2022.synthesis`,
+:mod:`jaxstyle.output.lpn_synthesis`, ``jaxstyle synthesize --model lpn-film``): a tiny LPN-FiLM
+trained in a fixture is reloaded from its run folder, drives characters along paths through the
+library and the command line, and blends 2 and 3 styles."""
+
+from __future__ import annotations
+
+import csv
+
+import jax
+import numpy as np
+import pytest
+
+from jaxstyle.cli.main import main
+from jaxstyle.control import paths
+from jaxstyle.data import folders, procedural
+from jaxstyle.labels.contacts import estimate_units_per_meter
+from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import synthesis as synthesis2022
+from jaxstyle.output import lpn_synthesis, metrics
+from jaxstyle.output.synthesis import quality_table
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """A run folder as ``jaxstyle lpn`` leaves it: RUN/lpn with a tiny LPN-FiLM (1 epoch) trained on
+    two procedural styles, and the files of a FiLM fine-tuning on a third style at two rates
+    (:func:`jaxstyle.mason2022.pipeline.write_finetune`; the generators are the trained one shifted
+    by a different constant per rate, so the chosen rate's generator is told apart; the sweep
+    itself is tested in test_pipeline_2022.py)."""
+    root = procedural.write_dataset(tmp_path_factory.mktemp("data") / "procedural",
+                                    styles=["Neutral", "Crouched", "Limping"], gaits=("FW",), seconds=8,
+                                    progress=False)
+    run = tmp_path_factory.mktemp("run")
+    styles, new_styles = folders.split_styles(root, ["Limping"])
+    data = pipeline.build_data(root, styles, new_styles, cache=run / "cache")
+    config = pipeline.model_config(data.base, hidden=8, generator_hidden=16, filters=4)
+    model = pipeline.train_model(data, config, run / "lpn", epochs=1, progress=False)
+    gen = model.params["style"]["generator"]
+    gens = jax.tree.map(lambda v: np.stack([np.stack([np.asarray(v) + 0.01, np.asarray(v) - 0.02])]), gen)
+    after = {split: {"mse": np.full((1, 2), 0.5), "bll": np.full((1, 2), 0.01)} for split in pipeline.SPLITS}
+    new = pipeline.train_lpn.style_data(data.new, data.skeleton, base=data.base)
+    result = pipeline.FinetuneResult(("Limping",), (0.1, 0.5), gens, 0, 0.0, {}, after, np.array([1]), new)
+    pipeline.write_finetune(result, run / "lpn")
+    return run, model, data, result
+
+
+@pytest.fixture(scope="module")
+def loaded(run_dir):
+    run, _, _, _ = run_dir
+    return synthesis2022.load_model(run / "lpn", cache=run / "cache")
+
+
+def _equal_trees(a, b):
+    return jax.tree.structure(a) == jax.tree.structure(b) and all(
+        np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b),
+                                                                      strict=True))
+
+
+def test_a_trained_model_reloads_from_its_folder_with_its_data(run_dir, loaded):
+    _, model, data, _ = run_dir
+    assert loaded.model.name == "LPN FiLM" and loaded.model.config == model.config and loaded.epochs == 1
+    assert _equal_trees(loaded.model.params, model.params)
+    assert loaded.model.data.styles == ("Crouched", "Neutral") and loaded.data.new.styles == ("Limping",)
+    for a, b in zip(loaded.data.base.normalisers(), data.base.normalisers(), strict=True):
+        np.testing.assert_array_equal(a.mean, b.mean)
+        np.testing.assert_array_equal(a.std, b.std)
+    np.testing.assert_array_equal(loaded.model.data.clips, model.data.clips)
+    assert loaded.data.skeleton.names == data.skeleton.names
+
+
+def test_characters_use_the_style_film_vectors_and_the_finetuned_generator(run_dir, loaded):
+    _, model, _, result = run_dir
+    chars = synthesis2022.characters(loaded, styles=["Neutral"], new_styles=["Limping"])
+    s = model.data.styles.index("Neutral")
+    np.testing.assert_allclose(chars[0].runtime, pipeline.train_lpn.film_vectors(model.params, model.data)[s],
+                               rtol=1e-6)
+    # the new style: the mean FiLM vector of its training clips under its fine-tuned generator
+    tuned = result.params(model, "Limping")
+    vec = pipeline.film.clip_films(tuned["style"]["generator"], result.data.clips[result.data.train_clips[0]])
+    np.testing.assert_allclose(chars[1].runtime, vec.mean(axis=0), rtol=1e-5, atol=1e-6)
+    assert chars[1].title.startswith("Limping (fine-tuned, rate ")
+    with pytest.raises(folders.PipelineError, match="unknown style 'Nope'"):
+        synthesis2022.characters(loaded, styles=["Nope"])
+
+
+def test_film_blends_are_the_weighted_sum_of_film_vectors(loaded):
+    a, b, c = synthesis2022.characters(loaded, styles=["Neutral", "Crouched"], new_styles=["Limping"])
+    config = loaded.model.config
+    one = lpn_synthesis.blend_character(config, [a, b, c], [1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(np.asarray(one.runtime), np.asarray(a.runtime))  # exactly the single style
+    w = [0.2, 0.3, 0.5]
+    mix = lpn_synthesis.blend_character(config, [a, b, c], w)
+    ref = sum(wi * np.asarray(x.runtime, np.float64) for wi, x in zip(w, (a, b, c), strict=True))
+    np.testing.assert_allclose(np.asarray(mix.runtime), ref, rtol=1e-5, atol=1e-6)
+    assert mix.title == "20% Neutral + 30% Crouched + 50% Limping" and mix.dataset is a.dataset
+    with pytest.raises(ValueError, match="barycentric"):
+        lpn_synthesis.blend_character(config, [a, b], [0.7, 0.7])
+    with pytest.raises(ValueError, match="2 or 3 styles"):
+        lpn_synthesis.blend_character(config, [a], [1.0])
+
+
+def test_synthesize_drives_characters_and_blends_with_the_2018_metrics(loaded, tmp_path):
+    a, b, c = synthesis2022.characters(loaded, styles=["Neutral", "Crouched"], new_styles=["Limping"])
+    config = loaded.model.config
+    # 4 characters on one 1 s path: the shapes of the command-line test below (one compiled rollout)
+    chars = [a, b, lpn_synthesis.blend_character(config, [a, b, c], [1.0, 0.0, 0.0]),
+             lpn_synthesis.blend_character(config, [a, b], [0.5, 0.5])]
+    out = synthesis2022.synthesize(loaded, chars, tmp_path, paths=["straight"], seconds=1.0, foot_ik=True,
+                                   gif=False, progress=False)
+    assert out.frames == 4 * 60 and len(out.rows) == 4 + 2  # + a real clip per style
+    skeleton = loaded.data.skeleton
+    assert "quality.csv" in [f.name for f in out.files]
+    pos = {}
+    for ch in chars:
+        with np.load(tmp_path / "bvh" / f"{ch.label}_straight.npz") as z:
+            pos[ch.title] = z["positions"]
+            assert z["contacts"].shape == (60, 2) and z["phase"].shape == (60, 8)
+        assert (tmp_path / "bvh" / f"{ch.label}_straight.bvh").is_file()
+    np.testing.assert_array_equal(pos[chars[2].title], pos[a.title])  # weights (1, 0, 0): the single style exactly
+    assert np.abs(pos[chars[3].title] - pos[a.title]).max() > 1e-3
+    assert np.abs(pos[chars[3].title] - pos[b.title]).max() > 1e-3
+    # the quality row: the same metrics functions on the skeleton's joints of the network's positions
+    row = next(r for r in out.rows if r["style"] == a.title and r["path"] == "straight")
+    upm = estimate_units_per_meter(skeleton)
+    sig = paths.named("straight", 1.0, out.speeds[a.title], units_per_meter=upm, fps=skeleton.fps)
+    q = metrics.motion_quality(pos[a.title][:, :skeleton.num_joints], skeleton, skeleton.fps, units_per_meter=upm,
+                               path_Tx2=sig.positions)
+    for k, v in q.as_row().items():
+        np.testing.assert_allclose(row[k], v, rtol=1e-6, equal_nan=True, err_msg=k)
+    assert np.isfinite(row["foot_skating_after_ik_m_s"])
+    with open(tmp_path / "quality.csv") as f:
+        assert len(list(csv.DictReader(f))) == len(out.rows)
+    assert quality_table(out.rows)[2].startswith(f"| {a.title} | straight | ")
+
+
+def test_cli_synthesize_model_lpn_film(run_dir, capsys):
+    run, _, _, _ = run_dir
+    args = ["synthesize", "--model", "lpn-film", "--run", str(run), "--paths", "straight", "--synth-seconds", "1",
+            "--every", "20", "--quiet"]
+    assert main(args + ["--base-styles", "Neutral", "Crouched", "--blend-weights", "0.2", "0.3", "0.5"]) == 0
+    text = capsys.readouterr().out
+    assert "synthesis with LPN FiLM (1 epochs" in text
+    assert "| 20% Neutral + 30% Crouched + 50% Limping | straight |" in text
+    out = run / "synthesis" / "lpn-film"
+    assert (out / "straight.gif").is_file() and (out / "quality.csv").is_file()
+    assert (out / "bvh" / "Limping_straight.bvh").is_file()
+    # one-line errors: a model of another kind, a missing folder, a bad blend
+    assert main(["synthesize", "--model", "lpn-onehot", "--run", str(run), "--quiet"]) == 1
+    assert "holds LPN FiLM (lpn-film)" in capsys.readouterr().err
+    assert main(["synthesize", "--model", "lpn-film", "--run", str(run / "nothing"), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "no trained 2022 model in" in err and len(err.strip().splitlines()) == 1
+    assert main(args + ["--blend-weights", "0.5", "0.6"]) == 1
+    assert "barycentric" in capsys.readouterr().err
