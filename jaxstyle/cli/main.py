@@ -8,6 +8,7 @@
     jaxstyle synthesize                # characters along user paths: GIF, BVH, quality figures
     jaxstyle render FILE.bvh ...       # a GIF of any BVH files
     jaxstyle bench                     # fine-tuning sweep against a loop, network speed
+    jaxstyle play [--run RUN]          # steer a styled character live in the browser
 
 Every step that trains or writes results works in a run folder (``--run``, default
 ``runs/jaxstyle``; the demo's is ``runs/demo``): ``base/``, ``sweep/``, ``synthesis/``, ``lpn/``,
@@ -30,7 +31,7 @@ import tomllib
 from pathlib import Path
 from typing import Callable, Sequence
 
-from jaxstyle.cli import bench, data, demo, lpn, render, sweep, synthesize, train_base
+from jaxstyle.cli import bench, data, demo, lpn, play, render, sweep, synthesize, train_base
 from jaxstyle.cli.common import (
     CLIError,
     Formatter,
@@ -45,7 +46,7 @@ from jaxstyle.cli.common import (
     resolve_defaults,
 )
 
-COMMANDS = (demo, data, train_base, sweep, lpn, synthesize, render, bench)
+COMMANDS = (demo, data, train_base, sweep, lpn, synthesize, render, bench, play)
 """The command modules, in the order of ``jaxstyle --help``: each has ``NAME``, ``HELP``, ``DOC``,
 ``add_arguments(parser)`` and ``run(args, run)``; :mod:`jaxstyle.cli.data` has ``ACTIONS`` instead."""
 
@@ -245,7 +246,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         resolve_defaults(args)
         handler: Callable = args.handler
         _check_paths(args)
-        if name in NEEDS_BASE and not (Path(args.run) / "base" / "base.json").is_file():
+        if (name in NEEDS_BASE and getattr(args, "model", "pfnn") == "pfnn"  # the 2022 models load their own
+                and not (Path(args.run) / "base" / "base.json").is_file()):
             raise CLIError(f"no base model in {Path(args.run) / 'base'}: train one first with "
                            "`jaxstyle train-base --data PATH --run RUN` (or run `jaxstyle demo`)")
         if "run" in vars(args):

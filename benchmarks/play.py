@@ -1,0 +1,159 @@
+"""Server-side cost of one ``jaxstyle play`` frame: the controller step of every character (one
+jitted call, :meth:`jaxstyle.play.session.Session.step`) and the viser scene update (bones,
+joints, future trajectory, targets, camera), for 1 and 8 characters.
+
+    python benchmarks/play.py [--run RUN] [--frames 600] [--characters 1 8]
+    python benchmarks/play.py --run runs/demo --screenshot docs/figures/play.png
+
+``--screenshot``: the page in headless Chromium (/usr/bin/chromium through playwright, as the
+browser tests), two characters walking to waypoints in two styles (the README's figure).
+
+With ``--run`` the run folder's model is timed (e.g. ``runs/demo``); without it, a PFNN of the
+demo's size (hidden 256, CP adapters of rank 16; random weights: timing does not depend on their
+values) on a procedural skeleton (25 joints). The characters walk (a waypoint ahead, the first
+one a blend of two styles). The viser server runs in this process with no page connected: the
+scene messages are built and queued as for a page, not sent over a network. Targets of issue 21:
+<= 4 ms per frame for one character, <= 8 ms for eight, on the 2-core CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import socket
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxstyle.data import procedural
+from jaxstyle.data.pfnn_features import PFNNLayout
+from jaxstyle.labels.contacts import estimate_units_per_meter
+from jaxstyle.mason2018 import pipeline
+from jaxstyle.nn import pfnn
+from jaxstyle.output import synthesis
+from jaxstyle.play import session
+from jaxstyle.play.server import PlayServer
+
+
+def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> session.PlayModel:
+    """A random PFNN of the demo's size with three random styles, on a procedural clip."""
+    root = procedural.write_dataset(folder / "data", ["Neutral"], ["FW"], seconds=6.0)
+    settings = pipeline.BaseSettings(data=str(root), styles=("Neutral",), hidden=hidden, rank=rank, epochs=1)
+    dataset = pipeline.build(pipeline.clip_specs(root, settings.styles, None), None)
+    layout = PFNNLayout((dataset.inputs.shape[1] - 48) // 6)
+    config = pfnn.PFNNConfig(input_size=layout.input_size, output_size=layout.output_size, hidden_size=hidden,
+                             rank=rank)
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    params = pfnn.init_pfnn(keys[0], config)
+    adapters = [pfnn.init_adapter(k, config) for k in keys[1:]]
+    skeleton = pipeline.datasets.load_clip(dataset.specs[0], fps=60.0)
+    base = pipeline.Base(params, pfnn.stack_adapters(adapters[:1]), dataset.normalisers(), config, dataset, skeleton,
+                         settings)
+    styles = {name: session.Style(name, "base", None, a) for name, a in zip(("A", "B", "C"), adapters, strict=True)}
+    upm = estimate_units_per_meter(skeleton)
+    speed = synthesis.own_speed(dataset, synthesis.style_rows(dataset, "Neutral"), upm)
+    return session.PlayModel(base, styles, upm, speed, folder)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def time_frames(server: PlayServer, characters: int, frames: int) -> dict[str, np.ndarray]:
+    s = server.session
+    while len(s.characters) < characters:
+        s.add_character()
+    names = list(s.styles)
+    if len(names) >= 2:
+        s.set_blend(names[:2], [0.5, 0.5])
+    s.walk_to(0.0, 50.0)
+    step_ms, total_ms = [], []
+    for k in range(frames + 30):
+        t0 = time.perf_counter()
+        frame = s.step()
+        t1 = time.perf_counter()
+        server._update_scene(frame, s.targets())
+        t2 = time.perf_counter()
+        if k >= 30:  # after compiling for this number of characters and creating its scene nodes
+            step_ms.append(1e3 * (t1 - t0))
+            total_ms.append(1e3 * (t2 - t0))
+    return {"step": np.asarray(step_ms), "total": np.asarray(total_ms)}
+
+
+def screenshot(run: Path, path: Path) -> None:
+    """The page on ``run`` with a Crouched and a Proud_FW character walking to two waypoints."""
+    from playwright.sync_api import sync_playwright
+
+    args = ["--no-sandbox", "--use-gl=swiftshader", "--enable-unsafe-swiftshader", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
+    server = PlayServer(run, port=free_port()).start()
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=args)
+            page = browser.new_page(viewport={"width": 1280, "height": 720})
+            page.goto(server.url)
+            page.wait_for_selector("canvas")
+            time.sleep(3)
+            with server.lock:
+                names = list(server.session.styles)
+                second = "Proud_FW" if "Proud_FW" in names else names[-1]
+                first = "Crouched" if "Crouched" in names else names[0]
+                server.session.add_character(second)
+                server.set_style(first)
+                server.session.walk_to(2.5, 5.0)
+                server.session.walk_to(-1.5, 10.0, append=True)
+            time.sleep(2.5)
+            page.add_style_tag(content=".mantine-Notifications-root{display:none !important}")  # software-WebGL note
+            time.sleep(0.5)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(path))
+            browser.close()
+    finally:
+        server.stop()
+    print(f"wrote {path}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--run", type=Path, help="time this run folder's model (default: a random demo-size PFNN)")
+    parser.add_argument("--frames", type=int, default=600)
+    parser.add_argument("--characters", type=int, nargs="+", default=[1, 8])
+    parser.add_argument("--screenshot", type=Path, help="write a screenshot of the page on --run instead")
+    args = parser.parse_args()
+    if args.screenshot:
+        screenshot(args.run or Path("runs/demo"), args.screenshot)
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.run:
+            model = session.load_model(args.run)
+            what = f"{args.run} (hidden {model.base.model.hidden_size}, rank {model.base.model.rank})"
+        else:
+            model = demo_size_model(Path(tmp))
+            what = "random PFNN of the demo's size (hidden 256, rank 16)"
+        server = PlayServer(tmp, port=free_port())
+        server.start(model=model, loop=False)
+        try:
+            print(f"jaxstyle play, server side per frame; {platform.machine()}, {os.cpu_count()} cores, "
+                  f"jax {jax.__version__} on {jax.devices()[0].platform}; {what}; {args.frames} frames")
+            print("| characters | controller step ms (median / p95) | step + scene update ms (median / p95) "
+                  "| target |")
+            print("|---|---|---|---|")
+            for c in args.characters:
+                t = time_frames(server, c, args.frames)
+                target = 4.0 if c == 1 else 8.0
+                total = np.median(t["total"])
+                print(f"| {c} | {np.median(t['step']):.2f} / {np.percentile(t['step'], 95):.2f} | {total:.2f} / "
+                      f"{np.percentile(t['total'], 95):.2f} | <= {target:g} ms: "
+                      f"{'met' if total <= target else 'NOT met'} |")
+        finally:
+            server.stop()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,544 @@
+"""The ``jaxstyle play`` web page: a viser scene (https://viser.studio) driven at 60 frames/s by a
+:class:`jaxstyle.play.session.Session`.
+
+viser is a pip-installable 3-D web viewer that ships its own web client: the characters (bones as
+cylinders, joints as spheres), a ground grid with shadows, the predicted future trajectory and
+the waypoints are scene nodes updated from Python; the controls are viser GUI elements; clicks on
+the ground arrive as scene click events (a ray, intersected here with the floor); keys arrive as
+command-palette hotkeys (viser sends key presses, not key releases, so a key sets a walking
+direction that holds until the next key, a click or Space).
+
+Threads: viser serves the page and runs the GUI callbacks in its own threads; one render thread
+steps the session and updates the scene every 1/60 s; learning a style runs in another
+(:class:`jaxstyle.play.learn.Learner`) and saving a recording in a short-lived one, so nothing
+blocks the render loop. A lock serialises every access to the session.
+
+Bad input (a BVH of another skeleton, a file that is not BVH, a run folder without a model, a
+failed recording) shows one line in the page (``message``) and in a notification; the server
+keeps running.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+import threading
+import time
+import warnings
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from jaxstyle.errors import JaxstyleError
+from jaxstyle.play import learn
+from jaxstyle.play.session import PLAY_DIR, PlayError, PlayModel, Session, Style, load_model, save_recording
+
+FPS = 60.0
+BONE_RADIUS_M = 0.035
+JOINT_RADIUS_M = 0.05
+COLORS = np.array([[90, 160, 230], [230, 120, 80], [110, 190, 110], [200, 110, 200], [220, 190, 80],
+                   [90, 200, 200], [170, 170, 170], [240, 140, 170]], dtype=np.uint8)
+NO_BLEND = "(none)"
+STEER_BUTTONS = {"Left": "A", "Forward": "W", "Back": "S", "Right": "D"}
+
+
+def _one_line(e: BaseException) -> str:
+    message = e.args[0] if isinstance(e, KeyError) and e.args else e
+    return " ".join(line.strip() for line in str(message).splitlines() if line.strip()) or type(e).__name__
+
+
+def _unit_cylinder(segments: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """A cylinder of radius 1 from z = -0.5 to 0.5 (vertices, faces), capped."""
+    a = 2 * np.pi * np.arange(segments) / segments
+    ring = np.stack([np.cos(a), np.sin(a)], axis=-1)
+    v = np.concatenate([np.c_[ring, np.full(segments, -0.5)], np.c_[ring, np.full(segments, 0.5)],
+                        [[0, 0, -0.5], [0, 0, 0.5]]])
+    i = np.arange(segments)
+    j = (i + 1) % segments
+    side = np.concatenate([np.stack([i, j, i + segments], -1), np.stack([j, j + segments, i + segments], -1)])
+    caps = np.concatenate([np.stack([np.full(segments, 2 * segments), j, i], -1),
+                           np.stack([np.full(segments, 2 * segments + 1), i + segments, j + segments], -1)])
+    return v.astype(np.float32), np.concatenate([side, caps]).astype(np.uint32)
+
+
+def _unit_sphere() -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=1, radius=1.0)
+    return np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32)
+
+
+def bone_transforms(positions_Jx3: np.ndarray, parents_J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per bone (joint with a parent): the midpoint ``(B, 3)``, the quaternion ``(B, 4)`` (w x y z)
+    turning +Z onto the bone and the scales ``(B, 3)`` (radius, radius, length) of a unit cylinder."""
+    child = np.flatnonzero(parents_J >= 0)
+    a, b = positions_Jx3[parents_J[child]], positions_Jx3[child]
+    d = b - a
+    length = np.linalg.norm(d, axis=-1)
+    u = d / np.maximum(length, 1e-9)[:, None]
+    q = np.stack([1.0 + u[:, 2], -u[:, 1], u[:, 0], np.zeros_like(length)], axis=-1)  # rotation +Z -> u
+    flip = q[:, 0] < 1e-6  # u = -Z: half a turn about X
+    q[flip] = [0.0, 1.0, 0.0, 0.0]
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    scales = np.stack([np.full_like(length, BONE_RADIUS_M), np.full_like(length, BONE_RADIUS_M), length], -1)
+    return (a + b) / 2, q, scales
+
+
+def ground_point(ray_origin, ray_direction) -> tuple[float, float] | None:
+    """Where a click's ray meets the floor (y = 0), x z in metres; ``None`` if it points up."""
+    o, d = np.asarray(ray_origin, np.float64), np.asarray(ray_direction, np.float64)
+    if d[1] > -1e-6:
+        return None
+    t = -o[1] / d[1]
+    return float(o[0] + t * d[0]), float(o[2] + t * d[2])
+
+
+class PlayServer:
+    """The live page on ``host:port`` for the run folder ``run_dir``.
+
+    ``start()`` serves the page, loads the run (a failure shows in the page) and starts the render
+    loop; ``stop()`` ends both. What the page shows is also here for tests and scripts:
+    ``session`` (``None`` until a run is loaded), ``message`` (the last error or note),
+    ``step_ms`` / ``frame_ms`` (the controller step and the whole frame, smoothed) and ``learner``.
+    """
+
+    def __init__(self, run_dir: str | Path, *, host: str = "127.0.0.1", port: int = 8080, learn_epochs: int = 40,
+                 learn_rates=None, record_seconds: float = 10.0, verbose: bool = False,
+                 log: Callable[[str], None] = lambda _: None):
+        self.run_dir = Path(run_dir)
+        self.host, self.port, self.verbose, self.log = host, int(port), verbose, log
+        self.learn_epochs = int(learn_epochs)
+        self.learn_rates = learn_rates
+        self.record_seconds = float(record_seconds)
+        self.session: Session | None = None
+        self.learner: learn.Learner | None = None
+        self.message = ""
+        self.step_ms = self.frame_ms = float("nan")
+        self.last_recording: list[Path] = []
+        self.lock = threading.RLock()
+        self._running = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._nodes: list = []  # per character: (bones, joints, future) handles
+        self._target_node = None
+        self._server = None
+        self._follow_at = None
+        self._cam_offset = np.array([2.2, 1.4, -3.6])
+
+    # --- life cycle ---------------------------------------------------------------------------
+    def start(self, load: bool = True, model: PlayModel | None = None, loop: bool = True) -> "PlayServer":
+        """Serve the page, load the run (or play ``model``) and, with ``loop``, start the render
+        loop (without it nothing moves until the caller steps the session and updates the scene:
+        ``benchmarks/play.py``)."""
+        import viser
+
+        self._server = viser.ViserServer(host=self.host, port=self.port, verbose=self.verbose)
+        self.port = self._server.get_port()
+        self.log(f"jaxstyle play: open {self.url} in a browser (Ctrl-C stops)")
+        self._scene_setup()
+        self._gui_setup()
+        if load:
+            self.load_run(self.run_dir, model)
+        if loop:
+            self._running.set()
+            self._thread = threading.Thread(target=self._loop, name="jaxstyle-play-render", daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        if self._server is None:
+            return
+        self._running.clear()
+        if self._thread is not None:
+            self._thread.join(5)
+        if self._server is not None:
+            self._server.stop()
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}"
+
+    def load_run(self, run_dir: str | Path, model: PlayModel | None = None) -> bool:
+        """Load the run folder (its base, few-shot and learned styles; or play ``model``, already
+        loaded) and start one character; on failure keep the current one, show the message and
+        return False."""
+        run_dir = Path(run_dir)
+        self._set_status("loading " + str(run_dir) + " ...")
+        self.log(f"loading {run_dir} ...")
+        try:
+            model = model or load_model(run_dir)
+            session = Session(model, record_seconds=max(self.record_seconds, 30.0))
+            session.step()  # compiles the step
+        except (JaxstyleError, ValueError, KeyError, OSError) as e:
+            self.show_error(f"{run_dir}: {_one_line(e)}")
+            self._set_status("no model loaded: give a run folder with a trained base below")
+            return False
+        with self.lock:
+            self.run_dir = run_dir
+            self.session = session
+            self.learner = learn.Learner(model, self._learned, on_fail=self._learn_failed, epochs=self.learn_epochs,
+                                         **({"rates": self.learn_rates} if self.learn_rates else {}))
+            self._clear_characters()
+        self._refresh_style_options()
+        self._gui["speed"].value = round(session.speed / 0.05) * 0.05
+        self._gui["run"].value = str(run_dir)
+        self.message = ""
+        self._gui["message"].content = ""
+        self.log(f"loaded {run_dir}: styles {', '.join(model.styles)}")
+        return True
+
+    # --- messages -----------------------------------------------------------------------------
+    def show_error(self, text: str) -> None:
+        """One line in the page (and a notification in every open page); the server goes on."""
+        self.message = text
+        self.log("error: " + text)
+        if self._server is None:
+            return
+        self._gui["message"].content = f"**Problem:** {text}"
+        for client in self._server.get_clients().values():
+            client.add_notification("jaxstyle play", text, color="red", auto_close_seconds=8.0)
+
+    def _note(self, text: str) -> None:
+        self.message = text
+        self._gui["message"].content = text
+
+    def _set_status(self, text: str) -> None:
+        if self._server is not None:
+            self._gui["status"].content = text
+
+    def _guarded(self, fn: Callable) -> Callable:
+        """A GUI callback that shows bad input in the page instead of failing."""
+
+        def run(*args):
+            try:
+                with self.lock:
+                    if self.session is None and fn.__name__ not in ("_on_load_run",):
+                        raise PlayError("no model loaded: give a run folder with a trained base")
+                    fn(*args)
+            except (JaxstyleError, ValueError, KeyError, OSError) as e:
+                self.show_error(_one_line(e))
+            except Exception as e:  # noqa: BLE001 - a bug in a callback must not end the page
+                self.show_error(f"internal error: {type(e).__name__}: {_one_line(e)}")
+
+        return run
+
+    # --- the scene ----------------------------------------------------------------------------
+    def _scene_setup(self) -> None:
+        scene = self._server.scene
+        scene.set_up_direction("+y")
+        scene.configure_default_lights(True, cast_shadow=True)
+        scene.add_grid("/ground", width=60.0, height=60.0, plane="xz", cell_size=0.5, section_size=2.0,
+                       shadow_opacity=0.3, plane_color=(235, 235, 230), plane_opacity=1.0, infinite_grid=True)
+        self._server.initial_camera.look_at = (0.0, 0.9, 0.0)
+        self._server.initial_camera.position = tuple(np.array([0.0, 0.9, 0.0]) + self._cam_offset)
+        self._cylinder, self._sphere = _unit_cylinder(), _unit_sphere()
+        scene.on_click()(self._wrap_click(append=False))
+        scene.on_click(modifier="shift")(self._wrap_click(append=True))
+
+    def _wrap_click(self, append: bool):
+        def on_click(event) -> None:
+            point = ground_point(event.ray_origin, event.ray_direction)
+            if point is None:
+                return
+            self._guarded(lambda: self.session.walk_to(*point, append=append))()
+
+        return on_click
+
+    def _clear_characters(self) -> None:
+        for nodes in self._nodes:
+            for n in nodes:
+                n.remove()
+        self._nodes = []
+
+    def _add_character_nodes(self, i: int, frame) -> None:
+        scene = self._server.scene
+        color = tuple(int(c) for c in COLORS[i % len(COLORS)])
+        parents = self.session.model.base.skeleton.parents
+        mid, q, s = bone_transforms(frame.positions[i], parents)
+        bones = scene.add_batched_meshes_simple(f"/characters/{i}/bones", *self._cylinder, q, mid, batched_scales=s,
+                                                batched_colors=color, lod="off", cast_shadow=True)
+        joints = scene.add_batched_meshes_simple(
+            f"/characters/{i}/joints", *self._sphere, np.tile([1.0, 0, 0, 0], (len(parents), 1)), frame.positions[i],
+            batched_scales=np.full(len(parents), JOINT_RADIUS_M), batched_colors=color, lod="off", cast_shadow=True)
+        future = scene.add_point_cloud(f"/characters/{i}/future", self._future_points(frame, i),
+                                       colors=color, point_size=0.08, point_shape="circle")
+        self._nodes.append((bones, joints, future))
+
+    @staticmethod
+    def _future_points(frame, i: int) -> np.ndarray:
+        f = frame.future[i]
+        return np.c_[f[:, 0], np.full(len(f), 0.02), f[:, 1]].astype(np.float32)
+
+    def _update_scene(self, frame, targets) -> None:
+        parents = self.session.model.base.skeleton.parents
+        while len(self._nodes) > len(frame.positions):
+            for n in self._nodes.pop():
+                n.remove()
+        with self._server.atomic():
+            for i in range(len(frame.positions)):
+                if i >= len(self._nodes):
+                    self._add_character_nodes(i, frame)
+                    continue
+                bones, joints, future = self._nodes[i]
+                mid, q, s = bone_transforms(frame.positions[i], parents)
+                bones.batched_positions, bones.batched_wxyzs, bones.batched_scales = mid, q, s
+                joints.batched_positions = frame.positions[i]
+                future.points = self._future_points(frame, i)
+            points = [p for t in targets for p in t]
+            if points:
+                xyz = np.array([[x, 0.03, z] for x, z in points], np.float32)
+                if self._target_node is None:
+                    self._target_node = self._server.scene.add_point_cloud(
+                        "/targets", xyz, colors=(220, 40, 40), point_size=0.2, point_shape="circle")
+                else:
+                    self._target_node.points = xyz
+                self._target_node.visible = True
+            elif self._target_node is not None:
+                self._target_node.visible = False
+            self._follow(frame)
+
+    def _follow(self, frame) -> None:
+        """Move every page's camera with the first character at a fixed offset (the view's angle
+        when "Camera follows" was last switched on; the page's own camera controls work while it
+        is off)."""
+        if not self._gui["follow"].value:
+            return
+        at = np.array([frame.origin[0, 0], 0.9, frame.origin[0, 1]])
+        if self._follow_at is not None and np.linalg.norm(at - self._follow_at) < 0.01:
+            return
+        self._follow_at = at
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a page closing meanwhile
+            for client in self._server.get_clients().values():
+                with client.atomic():
+                    client.camera.look_at = at
+                    client.camera.position = at + self._cam_offset
+
+    def _on_follow(self) -> None:
+        """Keep the current view's angle and distance when following is switched on."""
+        self._follow_at = None
+        if not self._gui["follow"].value:
+            return
+        for client in self._server.get_clients().values():
+            offset = np.asarray(client.camera.position) - np.asarray(client.camera.look_at)
+            if np.isfinite(offset).all() and 0.5 < np.linalg.norm(offset) < 50:
+                self._cam_offset = offset
+            break
+
+    def camera_yaw(self) -> float:
+        """The yaw of the first page's view direction (0: looking along +Z)."""
+        for client in self._server.get_clients().values():
+            d = np.asarray(client.camera.look_at) - np.asarray(client.camera.position)
+            if np.hypot(d[0], d[2]) > 1e-6:
+                return float(math.atan2(d[0], d[2]))
+        return 0.0
+
+    # --- the render loop ----------------------------------------------------------------------
+    def _loop(self) -> None:
+        period = 1.0 / FPS
+        next_t = time.perf_counter()
+        while self._running.is_set():
+            t0 = time.perf_counter()
+            try:
+                with self.lock:
+                    if self.session is not None:
+                        frame = self.session.step()
+                        self._update_scene(frame, self.session.targets())
+                        self.step_ms = _smooth(self.step_ms, frame.step_ms)
+                        self.frame_ms = _smooth(self.frame_ms, 1e3 * (time.perf_counter() - t0))
+                        if self.session.frames % 15 == 0:
+                            self._update_status()
+            except Exception as e:  # noqa: BLE001 - show it, keep serving
+                self.show_error(f"render loop: {type(e).__name__}: {_one_line(e)}")
+                time.sleep(0.5)
+            next_t += period
+            delay = next_t - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                next_t = time.perf_counter()  # behind: do not try to catch up
+
+    def _update_status(self) -> None:
+        name, rate = self.session.describe(0)
+        n = len(self.session.characters)
+        self._gui["status"].content = (
+            f"**Style:** {name}  \n**Dropout rate:** {rate}  \n**Controller step:** {self.step_ms:.2f} ms "
+            f"({n} character{'s' if n > 1 else ''}); frame {self.frame_ms:.2f} ms")
+        if self.learner is not None and self.learner.state == "running":
+            state, fraction, message = self.learner.status()
+            self._gui["progress"].value = 100.0 * fraction
+            self._gui["learn_note"].content = message
+
+    # --- the controls -------------------------------------------------------------------------
+    def _gui_setup(self) -> None:
+        gui = self._server.gui
+        g = self._gui = {}
+        gui.configure_theme(control_width="medium", show_logo=False)
+        g["status"] = gui.add_markdown("loading ...")
+        g["message"] = gui.add_markdown("")
+        with gui.add_folder("Steer"):
+            gui.add_markdown("Click the ground to walk there (Shift+click adds a waypoint); keys W A S D or the "
+                             "arrows walk relative to the camera (Shift runs), Space stops.")
+            g["steer"] = gui.add_button_group("Walk", options=list(STEER_BUTTONS) + ["Stop"])
+            g["speed"] = gui.add_slider("Speed (m/s)", min=0.2, max=4.0, step=0.05, initial_value=1.0)
+            g["follow"] = gui.add_checkbox("Camera follows", initial_value=True)
+            g["add"] = gui.add_button("Add a character")
+            g["remove"] = gui.add_button("Remove a character")
+        with gui.add_folder("Style"):
+            g["style"] = gui.add_dropdown("Style", options=["(loading)"], initial_value="(loading)")
+            gui.add_markdown("Blend up to three styles (the weights are normalised):")
+            g["blend"] = [gui.add_dropdown(f"Blend {k}", options=[NO_BLEND], initial_value=NO_BLEND) for k in "ABC"]
+            g["weights"] = [gui.add_slider(f"Weight {k}", min=0.0, max=1.0, step=0.05, initial_value=0.5)
+                            for k in "ABC"]
+            g["blend_on"] = gui.add_button("Play the blend")
+        with gui.add_folder("Learn a style"):
+            gui.add_markdown("A BVH clip of the base skeleton (a few seconds of one style): upload it or give its "
+                             "path, then learn it. The characters keep walking meanwhile.")
+            g["upload"] = gui.add_upload_button("Upload a BVH clip and learn it", mime_type="*/*")
+            g["path"] = gui.add_text("BVH path", initial_value="")
+            g["learn"] = gui.add_button("Learn the style of this file")
+            g["progress"] = gui.add_progress_bar(0.0, animated=False)
+            g["learn_note"] = gui.add_markdown("")
+        with gui.add_folder("Record"):
+            g["seconds"] = gui.add_slider("Seconds", min=1.0, max=30.0, step=1.0, initial_value=self.record_seconds)
+            g["record"] = gui.add_button("Save the last seconds (BVH + GIF)")
+            g["record_note"] = gui.add_markdown("")
+        with gui.add_folder("Run folder"):
+            g["run"] = gui.add_text("Run folder", initial_value=str(self.run_dir))
+            g["load"] = gui.add_button("Load this run folder")
+
+        g["steer"].on_click(lambda e: self._guarded(self._on_steer)(e.target.value))
+        g["follow"].on_update(lambda _: self._on_follow())
+        g["speed"].on_update(lambda _: self._guarded(lambda: self.session.set_speed(g["speed"].value))())
+        g["add"].on_click(lambda _: self._guarded(lambda: self.session.add_character(g["style"].value))())
+        g["remove"].on_click(lambda _: self._guarded(self.session_remove)())
+        g["style"].on_update(lambda _: self._guarded(self._on_style)())
+        g["blend_on"].on_click(lambda _: self._guarded(self._on_blend)())
+        for handle in g["weights"] + g["blend"]:
+            handle.on_update(lambda _: self._guarded(self._on_blend_change)())
+        g["upload"].on_upload(lambda e: self._guarded(self._on_upload)(e.target.value))
+        g["learn"].on_click(lambda _: self._guarded(lambda: self.learn(g["path"].value))())
+        g["record"].on_click(lambda _: self._guarded(lambda: self.record(g["seconds"].value))())
+        g["load"].on_click(lambda _: self._guarded_load())
+        for key in ("W", "A", "S", "D", "arrowup", "arrowleft", "arrowdown", "arrowright"):
+            for shift in (False, True):
+                cmd = gui.add_command(f"{'Run' if shift else 'Walk'} {key}", hotkey=key,
+                                      modifier="shift" if shift else None)
+                cmd.on_trigger(lambda _, key=key, shift=shift: self._guarded(self.press)(key, shift))
+        gui.add_command("Stop", hotkey="space").on_trigger(lambda _: self._guarded(lambda: self.session.stop())())
+
+    def _guarded_load(self) -> None:
+        path = self._gui["run"].value.strip()
+        threading.Thread(target=self.load_run, args=(path,), daemon=True).start()
+
+    def session_remove(self) -> None:
+        self.session.remove_character()
+
+    def press(self, key: str, run: bool = False) -> None:
+        """A steering key, as the page's hotkeys send it."""
+        self.session.key(key, self.camera_yaw(), run=run)
+
+    def _on_steer(self, which: str) -> None:
+        if which == "Stop":
+            self.session.stop()
+        else:
+            self.press(STEER_BUTTONS[which])
+
+    def _refresh_style_options(self) -> None:
+        names = list(self.session.styles)
+        g = self._gui
+        g["style"].options = names
+        g["style"].value = self.session.characters[0].style
+        for k, handle in enumerate(g["blend"]):
+            handle.options = [NO_BLEND] + names
+            if handle.value not in handle.options:
+                handle.value = NO_BLEND
+            if handle.value == NO_BLEND and k < 2 and len(names) > k:
+                handle.value = names[k]
+
+    def _on_style(self) -> None:
+        name = self._gui["style"].value
+        first = self.session.characters[0]
+        if name in self.session.styles and (name != first.style or first.blend is not None):
+            self.session.set_style(name, 0)
+
+    def _blend_choice(self):
+        names, weights = [], []
+        for handle, w in zip(self._gui["blend"], self._gui["weights"], strict=True):
+            if handle.value != NO_BLEND and handle.value not in names:
+                names.append(handle.value)
+                weights.append(w.value)
+        return names, weights
+
+    def _on_blend(self) -> None:
+        names, weights = self._blend_choice()
+        self.session.set_blend(names, weights, 0)
+
+    def _on_blend_change(self) -> None:
+        if self.session.characters[0].blend is not None:
+            self._on_blend()  # a blend playing follows its sliders from the next frame on
+
+    def set_style(self, name: str) -> None:
+        """Switch the first character, as the dropdown does (tests and scripts)."""
+        self._gui["style"].value = name
+
+    # --- learning -----------------------------------------------------------------------------
+    def _on_upload(self, uploaded) -> None:
+        if not uploaded.name:
+            return
+        folder = self.run_dir / PLAY_DIR / "uploads"
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / Path(uploaded.name).name
+        path.write_bytes(uploaded.content)
+        self.learn(str(path))
+
+    def learn(self, path: str) -> str:
+        """Start learning the BVH file at ``path`` in the background (progress in the page)."""
+        if not str(path).strip():
+            raise PlayError("give the path of a BVH file (or upload one)")
+        path = Path(str(path).strip()).expanduser()
+        learn.check_clip(path, self.session.model)  # bad files are refused at once
+        name = self.learner.start(path)
+        self._gui["progress"].value = 0.0
+        self._gui["learn_note"].content = f"{name}: starting ..."
+        return name
+
+    def _learned(self, style: Style) -> None:
+        with self.lock:
+            self.session.add_style(style)
+            self._refresh_style_options()
+        self._gui["progress"].value = 100.0
+        self._gui["learn_note"].content = self.learner.status()[2]
+        self.log(self.learner.status()[2])
+
+    def _learn_failed(self, message: str) -> None:
+        self._gui["progress"].value = 0.0
+        self._gui["learn_note"].content = message
+        self.show_error(message)
+
+    # --- recording ----------------------------------------------------------------------------
+    def record(self, seconds: float) -> None:
+        """Save the first character's last ``seconds`` as BVH (feet pinned) and GIF, in a thread."""
+        rollout = self.session.recording(float(seconds), 0)
+        name, _ = self.session.describe(0)
+        model = self.session.model
+        stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+        path = self.run_dir / PLAY_DIR / "recordings" / f"{learn.style_name(name.replace('%', 'pc'))}_{stamp}"
+        self._gui["record_note"].content = "saving ..."
+
+        def save():
+            try:
+                files = save_recording(rollout, model, path, title=name)
+                self.last_recording = files
+                self._gui["record_note"].content = "saved: " + ", ".join(str(f) for f in files)
+            except (JaxstyleError, ValueError, OSError) as e:
+                self.show_error(f"recording: {_one_line(e)}")
+
+        threading.Thread(target=save, name="jaxstyle-play-record", daemon=True).start()
+
+
+def _smooth(old: float, new: float, keep: float = 0.9) -> float:
+    return new if not math.isfinite(old) else keep * old + (1 - keep) * new
+
+
+__all__ = ["PlayServer", "PlayModel", "bone_transforms", "ground_point"]

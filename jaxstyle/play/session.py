@@ -1,0 +1,456 @@
+"""The state of a live ``jaxstyle play`` session, free of any browser: the styles of a run folder,
+the characters and how the user steers them, one jitted step per displayed frame, style switches
+and blends, and the recording buffer.
+
+The runtime is the PFNN controller of Mason et al. 2018 section 7.1 (Holden et al. 2017's loop,
+:mod:`jaxstyle.control.controller`): each frame the user's steering becomes one row of
+:class:`jaxstyle.control.loop.Controls` (the desired ground displacement and facing at the six
+future samples, 0 .. 50 frames ahead), and all characters advance by ONE frame in one jitted call
+(``jit(vmap(step))`` over characters, the base weights compiled in as constants, as
+:func:`jaxstyle.control.controller.step_fn` does for one character).
+
+Styles are CP adapters (base styles, the few-shot sweep's chosen adapters, styles learned live).
+A 2- or 3-way blend is the exact CP adapter of the summed rank
+(:func:`jaxstyle.nn.pfnn.blend_adapters`). Every adapter is zero-padded to ``3 r`` components
+(:func:`jaxstyle.nn.pfnn.pad_rank`, which changes nothing it computes), so switching from one
+style to any other or to a blend feeds the compiled step arrays of the same shapes: a switch takes
+effect on the next frame without recompiling.
+
+Units: the network works in the skeleton's file units; everything the user gives or sees here
+(targets, speeds, positions) is in metres, metres per second and radians, Y up, a yaw ``a``
+facing ``(sin a, cos a)`` in (x, z).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+from typing import Callable, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxstyle.control import controller, loop
+from jaxstyle.control.controller import Rollout, RolloutState
+from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
+from jaxstyle.labels.contacts import estimate_units_per_meter
+from jaxstyle.mason2018 import pipeline, selection
+from jaxstyle.nn import pfnn
+from jaxstyle.output import synthesis
+
+MAX_BLEND = 3
+STAND_EASE = 0.1  # per frame, the share of the gap to the asked standing amount closed (``Session.controls``)
+ARRIVE_M = 0.3  # a waypoint is reached within this distance
+PLAY_DIR = "play"  # under the run folder: learned styles, uploads, recordings
+SAMPLE_SECONDS = np.arange(FUTURE_SAMPLES) * loop.SPACING / 60.0  # the future samples' times, 0 .. 50 frames
+
+
+class PlayError(pipeline.PipelineError):
+    """Bad input to a play session (unknown style, bad blend, nothing recorded, ...), one line."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Style:
+    """A playable style: its ``name``, ``kind`` (``base``, ``few-shot``, ``learned``), the dropout
+    ``rate`` the sweep chose for it (``None`` for base styles) and its CP ``adapter``."""
+
+    name: str
+    kind: str
+    rate: float | None
+    adapter: dict
+
+    @property
+    def label(self) -> str:
+        return self.name if self.rate is None else f"{self.name} ({self.kind}, rate {self.rate:g})"
+
+
+class PlayModel(NamedTuple):
+    """A loaded run: the base (:class:`jaxstyle.mason2018.pipeline.Base`), its ``styles`` by name,
+    the ``units_per_meter`` of its skeleton and the walking ``speed`` (m/s) of its first style."""
+
+    base: pipeline.Base
+    styles: dict[str, Style]
+    units_per_meter: float
+    speed: float
+    run_dir: Path
+
+
+def _sweep_styles(directory: Path, base: pipeline.Base, kind: str) -> list[Style]:
+    """The chosen adapters of a sweep report written by :func:`jaxstyle.mason2018.pipeline.run_sweep`."""
+    chosen_path = directory / "chosen_rates.json"
+    if not chosen_path.is_file():
+        return []
+    chosen = json.loads(chosen_path.read_text())
+    return [Style(name, kind, float(info["rate"]), selection.load_adapter(directory / "adapters" / name, base.model))
+            for name, info in chosen.items() if (directory / "adapters" / name).is_dir()]
+
+
+def learned_root(run_dir: str | Path) -> Path:
+    """Where styles learned live are kept: ``RUN/play/styles/<name>/`` (each a sweep report)."""
+    return Path(run_dir) / PLAY_DIR / "styles"
+
+
+def load_model(run_dir: str | Path, *, progress: bool = False, log: Callable[[str], None] = lambda _: None
+               ) -> PlayModel:
+    """The base of ``RUN/base``, its base styles, the few-shot styles of ``RUN/sweep`` (their chosen
+    rates) and the styles learned in earlier sessions (``RUN/play/styles``). A folder without a
+    base raises :class:`jaxstyle.data.folders.PipelineError` naming it."""
+    run_dir = Path(run_dir)
+    base = pipeline.load_base(run_dir / "base", cache=run_dir / "cache", progress=progress, log=log)
+    styles: dict[str, Style] = {}
+    for s, name in enumerate(base.dataset.styles):
+        styles[name] = Style(name, "base", None, jax.tree.map(lambda v, s=s: v[s], base.adapters))
+    for style in _sweep_styles(run_dir / "sweep", base, "few-shot"):
+        styles[style.name] = style
+    root = learned_root(run_dir)
+    if root.is_dir():
+        for d in sorted(p for p in root.iterdir() if p.is_dir()):
+            for style in _sweep_styles(d, base, "learned"):
+                styles[style.name] = style
+    upm = estimate_units_per_meter(base.skeleton)
+    rows = synthesis.style_rows(base.dataset, base.dataset.styles[0])
+    speed = synthesis.own_speed(base.dataset, rows, upm, base.skeleton.fps)
+    return PlayModel(base, styles, upm, speed, run_dir)
+
+
+@dataclasses.dataclass
+class Steering:
+    """How one character is steered: ``mode`` ``stop``, ``target`` (walk through ``waypoints``, x z
+    in metres, then stop) or ``direction`` (walk along ``heading``); at ``speed`` m/s."""
+
+    mode: str = "stop"
+    waypoints: list[tuple[float, float]] = dataclasses.field(default_factory=list)
+    heading: float = 0.0
+    speed: float = 1.0
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def control_row(origin_m: np.ndarray, yaw: float, steering: Steering, units_per_meter: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """One row of :class:`jaxstyle.control.loop.Controls` for a character at ``origin_m`` (x, z in
+    metres) facing ``yaw``: ``offsets (6, 2)`` (global ground displacement to the future samples,
+    file units) and ``yaw (6,)``. Towards a target the displacement grows at ``speed`` and stops at
+    the target; the facing turns to the direction of travel (the shorter way round); standing
+    still keeps the current facing. Advances ``steering`` past a reached waypoint."""
+    offsets = np.zeros((FUTURE_SAMPLES, 2))
+    facing = yaw
+    if steering.mode == "target":
+        while steering.waypoints:
+            d = np.asarray(steering.waypoints[0]) - origin_m
+            if np.hypot(*d) > ARRIVE_M:
+                break
+            steering.waypoints.pop(0)
+        if not steering.waypoints:
+            steering.mode = "stop"
+        else:
+            d = np.asarray(steering.waypoints[0]) - origin_m
+            dist = float(np.hypot(*d))
+            reach = np.minimum(steering.speed * SAMPLE_SECONDS, dist)
+            offsets = reach[:, None] * (d / dist)[None]
+            facing = yaw + _wrap(math.atan2(d[0], d[1]) - yaw)
+    elif steering.mode == "direction":
+        h = steering.heading
+        offsets = steering.speed * SAMPLE_SECONDS[:, None] * np.array([math.sin(h), math.cos(h)])[None]
+        facing = yaw + _wrap(h - yaw)
+    return offsets * units_per_meter, np.full(FUTURE_SAMPLES, facing)
+
+
+KEY_HEADINGS = {"W": 0.0, "A": math.pi / 2, "S": math.pi, "D": -math.pi / 2}
+"""Keyboard steering: the heading of each key relative to the camera's view direction (W walks away
+from the camera, S towards it, A to the left, D to the right)."""
+
+
+def key_heading(key: str, camera_yaw: float) -> float:
+    """The world heading of a steering key (:data:`KEY_HEADINGS`; arrow keys as W A S D) for a
+    camera looking along yaw ``camera_yaw`` (its view direction projected on the ground)."""
+    arrows = {"ARROWUP": "W", "ARROWLEFT": "A", "ARROWDOWN": "S", "ARROWRIGHT": "D"}
+    k = arrows.get(key.upper(), key.upper())
+    if k not in KEY_HEADINGS:
+        raise PlayError(f"unknown steering key {key!r}; use W A S D or the arrow keys")
+    return _wrap(camera_yaw + KEY_HEADINGS[k])
+
+
+@dataclasses.dataclass
+class Character:
+    """One walking character: its style (``style``; or ``blend``: ``(names, weights)``), steering,
+    formation offset (metres, added to every target so characters do not meet) and its recent
+    frames (ring buffers of the de-normalised network outputs and generated frames)."""
+
+    style: str
+    steering: Steering
+    offset: np.ndarray
+    blend: tuple[tuple[str, ...], tuple[float, ...]] | None = None
+    history: list = dataclasses.field(default_factory=list)
+    stand: float = 0.0
+
+
+class Frame(NamedTuple):
+    """What the scene shows after a step, in metres: joint ``positions (C, J, 3)``, ground
+    ``origin (C, 2)``, ``yaw (C,)``, the predicted future trajectory ``future (C, 6, 2)`` (x, z) and
+    the step's wall time ``step_ms`` (the jitted call, its inputs and reading back its outputs)."""
+
+    positions: np.ndarray
+    origin: np.ndarray
+    yaw: np.ndarray
+    future: np.ndarray
+    step_ms: float
+
+
+_STEPS: dict = {}
+
+
+def batched_step(base: pipeline.Base, blend_bias: float = 1.5):
+    """The jitted ``f(adapters, states, (offsets, yaw, stand)) -> (states, frames)`` advancing ``C``
+    characters by one frame (``jit(vmap(step))`` of :func:`jaxstyle.control.controller.model_step`,
+    every argument with a leading character axis; the base weights compiled in as constants). One per base: a
+    new session on the same base (another page, a reloaded run) compiles nothing again."""
+    key = (id(base.params), blend_bias)
+    if key not in _STEPS or _STEPS[key][0] is not base.params:
+        step = controller.model_step(base.params, loop.normaliser_arrays(base.normalisers[0]),
+                                     loop.normaliser_arrays(base.normalisers[1]), base.skeleton.num_joints,
+                                     blend_bias)
+        _STEPS[key] = (base.params, jax.jit(jax.vmap(step)))
+    return _STEPS[key][1]
+
+
+class Session:
+    """A live session on a :class:`PlayModel`: characters, steering, styles, blends, recording.
+
+    Thread safety: the server calls every method from its own threads; the caller serialises them
+    (``jaxstyle.play.server`` holds one lock around each call), so nothing here locks.
+    """
+
+    def __init__(self, model: PlayModel, *, style: str | None = None, record_seconds: float = 30.0,
+                 blend_bias: float = 1.5):
+        self.model = model
+        base = model.base
+        self.num_joints = base.skeleton.num_joints
+        self.fps = float(base.skeleton.fps)
+        self.upm = float(model.units_per_meter)
+        self.rank = int(base.model.rank) * MAX_BLEND
+        self._step = batched_step(base, float(blend_bias))
+        rows = synthesis.style_rows(base.dataset, base.dataset.styles[0])
+        row = controller.start_row(base.dataset.inputs, model.speed, units_per_meter=self.upm, rows=rows, fps=self.fps)
+        self._start = controller.initial_state(base.dataset.inputs[row], float(base.dataset.phases[row, 0]),
+                                               self.num_joints)
+        self.capacity = max(1, int(round(record_seconds * self.fps)))
+        self.speed = float(model.speed)
+        self.characters: list[Character] = []
+        self._states: RolloutState | None = None
+        self._adapters = None
+        self._dirty = True
+        self.frames = 0
+        self.add_character(style or next(iter(model.styles)))
+        # run the blend's small array operations once per blend size, so the first blend the user
+        # asks for costs no compilation either
+        one = next(iter(model.styles.values())).adapter
+        for k in range(2, MAX_BLEND + 1):
+            pfnn.pad_rank(pfnn.blend_adapters(pfnn.stack_adapters([one] * k), np.full(k, 1.0 / k)), self.rank)
+
+    # --- styles -------------------------------------------------------------------------------
+    @property
+    def styles(self) -> dict[str, Style]:
+        return self.model.styles
+
+    def _check_style(self, name: str) -> Style:
+        if name not in self.model.styles:
+            raise PlayError(f"unknown style {name!r}; this run has {', '.join(self.model.styles)}")
+        return self.model.styles[name]
+
+    def add_style(self, style: Style) -> None:
+        """Make ``style`` playable (a style learned live); it replaces one of the same name."""
+        self.model.styles[style.name] = style
+        self._dirty = True
+
+    def set_style(self, name: str, character: int = 0) -> None:
+        """Switch ``character`` to the style ``name`` (from the next frame on)."""
+        self._check_style(name)
+        c = self.characters[character]
+        c.style, c.blend = name, None
+        self._dirty = True
+
+    def set_blend(self, names: Sequence[str], weights: Sequence[float], character: int = 0) -> None:
+        """Drive ``character`` with a blend of up to :data:`MAX_BLEND` styles; ``weights`` are
+        non-negative and are normalised to sum to 1 (all zero is refused)."""
+        names = tuple(names)
+        if not 1 <= len(names) <= MAX_BLEND or len(set(names)) != len(names):
+            raise PlayError(f"a blend takes 1 to {MAX_BLEND} different styles, got {list(names)}")
+        for n in names:
+            self._check_style(n)
+        w = np.asarray(weights, dtype=np.float64)
+        if w.shape != (len(names),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+            raise PlayError(f"blend weights must be {len(names)} non-negative numbers, not all zero; got {w.tolist()}")
+        c = self.characters[character]
+        c.blend = (names, tuple(float(x) for x in w / w.sum()))
+        c.style = names[int(np.argmax(w))]
+        self._dirty = True
+
+    def describe(self, character: int = 0) -> tuple[str, str]:
+        """The name of what ``character`` plays and its dropout rate(s), for the screen."""
+        c = self.characters[character]
+        if c.blend is None:
+            s = self.model.styles[c.style]
+            return s.name, "-" if s.rate is None else f"{s.rate:g}"
+        names, w = c.blend
+        rates = [self.model.styles[n].rate for n in names]
+        return (" + ".join(f"{100 * wi:.0f}% {n}" for n, wi in zip(names, w, strict=True)),
+                " / ".join("-" if r is None else f"{r:g}" for r in rates))
+
+    def adapter_of(self, c: Character) -> dict:
+        """The character's adapter, padded to the session's fixed rank."""
+        if c.blend is None:
+            adapter = self.model.styles[c.style].adapter
+        else:
+            names, w = c.blend
+            stacked = pfnn.stack_adapters([self.model.styles[n].adapter for n in names])
+            adapter = pfnn.blend_adapters(stacked, np.asarray(w))
+        return pfnn.pad_rank(adapter, self.rank)
+
+    # --- characters ---------------------------------------------------------------------------
+    def add_character(self, style: str | None = None) -> int:
+        """A new character beside the others (1.2 m apart), in ``style`` (default the first's);
+        returns its index."""
+        style = style or self.characters[0].style
+        self._check_style(style)
+        i = len(self.characters)
+        offset = np.array([1.2 * ((i + 1) // 2) * (1 if i % 2 else -1), 0.0])
+        first = self.characters[0].steering if self.characters else Steering(speed=self.speed)
+        points = [(x + offset[0], z + offset[1]) for x, z in first.waypoints]  # the first has offset 0
+        self.characters.append(Character(style, dataclasses.replace(first, waypoints=points), offset))
+        start = self._start._replace(hist_xz=self._start.hist_xz + jnp.asarray(offset * self.upm, jnp.float32))
+        if self._states is None:
+            self._states = jax.tree.map(lambda v: v[None], start)
+        else:
+            # the new one starts beside the first character, where it stands now
+            here = jnp.asarray(self.origin()[0] * self.upm, jnp.float32) - self._start.hist_xz[-1]
+            start = start._replace(hist_xz=start.hist_xz + here)
+            self._states = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]]), self._states, start)
+        self._dirty = True
+        return i
+
+    def remove_character(self) -> None:
+        """Remove the last character (the first one always stays)."""
+        if len(self.characters) > 1:
+            self.characters.pop()
+            self._states = jax.tree.map(lambda v: v[:-1], self._states)
+            self._dirty = True
+
+    def origin(self) -> np.ndarray:
+        """Where each character stands, ``(C, 2)`` x z in metres."""
+        return np.asarray(self._states.hist_xz[:, -1]) / self.upm
+
+    def yaw(self) -> np.ndarray:
+        return np.asarray(self._states.hist_yaw[:, -1])
+
+    # --- steering -----------------------------------------------------------------------------
+    def walk_to(self, x: float, z: float, *, append: bool = False) -> None:
+        """Walk to the ground point ``(x, z)`` metres (each character to it plus its formation
+        offset); ``append`` adds it as the next waypoint after those already set."""
+        if not (math.isfinite(x) and math.isfinite(z)):
+            raise PlayError(f"a target must be a finite point, got ({x}, {z})")
+        for c in self.characters:
+            point = (float(x + c.offset[0]), float(z + c.offset[1]))
+            if append and c.steering.mode == "target":
+                c.steering.waypoints.append(point)
+            else:
+                c.steering.waypoints = [point]
+            c.steering.mode = "target"
+
+    def walk_along(self, heading: float, speed: float | None = None) -> None:
+        """Walk along the world heading (yaw, radians) until told otherwise."""
+        for c in self.characters:
+            c.steering.mode, c.steering.heading = "direction", float(heading)
+            c.steering.waypoints = []
+        if speed is not None:
+            self.set_speed(speed)
+
+    def key(self, key: str, camera_yaw: float, *, run: bool = False) -> None:
+        """A steering key (W A S D or arrows, relative to the camera); ``run`` (shift) walks at twice
+        the walking speed."""
+        self.walk_along(key_heading(key, camera_yaw))
+        for c in self.characters:
+            c.steering.speed = self.speed * (2.0 if run else 1.0)
+
+    def stop(self) -> None:
+        for c in self.characters:
+            c.steering.mode, c.steering.waypoints = "stop", []
+
+    def set_speed(self, speed: float) -> None:
+        if not (math.isfinite(speed) and 0 < speed <= 10):
+            raise PlayError(f"speed must be in (0, 10] m/s, got {speed}")
+        self.speed = float(speed)
+        for c in self.characters:
+            c.steering.speed = self.speed
+
+    def targets(self) -> list[list[tuple[float, float]]]:
+        return [list(c.steering.waypoints) for c in self.characters]
+
+    # --- the frame ----------------------------------------------------------------------------
+    def controls(self) -> loop.Controls:
+        """This frame's :class:`Controls` rows, stacked over characters: ``offsets (C, 6, 2)``,
+        ``yaw (C, 6)`` and ``stand (C,)``, no path following (the targets are steered here).
+
+        ``stand`` is the PFNN demo's standing amount (Holden et al. 2017; see
+        :func:`jaxstyle.control.controller.advance`): it eases towards 1 while a character is told
+        to stand and towards 0 while it walks, by :data:`STAND_EASE` of the gap per frame, so a
+        stopped character stops instead of drifting on."""
+        origin, yaw = self.origin(), self.yaw()
+        rows = [control_row(origin[i], float(yaw[i]), c.steering, self.upm) for i, c in enumerate(self.characters)]
+        for c in self.characters:
+            c.stand += STAND_EASE * (float(c.steering.mode == "stop") - c.stand)
+        return loop.Controls(jnp.asarray(np.stack([r[0] for r in rows]), jnp.float32),
+                             jnp.asarray(np.stack([r[1] for r in rows]), jnp.float32),
+                             stand=jnp.asarray([c.stand for c in self.characters], jnp.float32))
+
+    def step(self) -> Frame:
+        """Advance every character by one frame (one jitted call) and return what to draw."""
+        t0 = time.perf_counter()
+        if self._dirty:
+            self._adapters = pfnn.stack_adapters([self.adapter_of(c) for c in self.characters])
+            self._dirty = False
+        controls = self.controls()
+        self._states, out = self._step(self._adapters, self._states, (controls.offsets, controls.yaw, controls.stand))
+        out, future, origin, yaw = jax.device_get((out, self._states.future, self._states.hist_xz[:, -1],
+                                                   self._states.hist_yaw[:, -1]))
+        ms = 1e3 * (time.perf_counter() - t0)
+        for i, c in enumerate(self.characters):
+            c.history.append(jax.tree.map(lambda v, i=i: v[i], out))
+            if len(c.history) > self.capacity:
+                del c.history[: len(c.history) - self.capacity]
+        self.frames += 1
+        # the predicted future (x, z in the character frame at the six samples) in the world, metres
+        fx, fz = loop.rotate_xz(future[:, 0], future[:, 1], yaw[:, None])
+        world = np.stack([np.asarray(fx) + origin[:, :1], np.asarray(fz) + origin[:, 1:]], axis=-1)
+        return Frame(np.asarray(out.positions) / self.upm, origin / self.upm, yaw, world / self.upm, ms)
+
+    def recording(self, seconds: float, character: int = 0) -> Rollout:
+        """The last ``seconds`` of ``character`` as a :class:`Rollout` (frames on the leading axis),
+        ready for :mod:`jaxstyle.output.export`."""
+        history = self.characters[character].history
+        n = min(len(history), int(round(seconds * self.fps)))
+        if n < 2:
+            raise PlayError("nothing recorded yet: let the character walk a moment first")
+        return jax.tree.map(lambda *v: np.stack(v), *history[-n:])
+
+
+def save_recording(rollout: Rollout, model: PlayModel, path: str | Path, *, foot_ik: bool = True,
+                   gif: bool = True, title: str = "") -> list[Path]:
+    """Write a recorded :class:`Rollout` as ``<path>.bvh`` (feet pinned while in contact with
+    ``foot_ik``, :func:`jaxstyle.output.export.fix_feet`), ``<path>.npz`` and, with ``gif``,
+    ``<path>.gif`` (:func:`jaxstyle.output.preview.render_gif`); returns the files."""
+    from jaxstyle.output import export, preview
+
+    skeleton = model.base.skeleton
+    files = list(export.save_rollout(path, rollout, skeleton, foot_ik=foot_ik).values())
+    if gif:
+        files.append(preview.render_gif(Path(path).with_suffix(".gif"), [np.asarray(rollout.positions)],
+                                        skeleton.parents, skeleton.fps, titles=[title or Path(path).stem],
+                                        units_per_meter=model.units_per_meter, every=2))
+    return files

@@ -1,0 +1,205 @@
+"""``jaxstyle play`` in a real browser: headless Chromium (the Debian package, driven by Python
+playwright through its executable path) loads the page, steers by a click on the ground and by a
+key, switches the style from the dropdown, and sends bad input; the test checks the server's
+state and the page's text, and that a screenshot is not blank.
+
+Skips (with the reason) only when /usr/bin/chromium is missing and JAXSTYLE_REQUIRE_BROWSER is
+unset; CI installs Chromium (.ci/run), so there it runs."""
+
+from __future__ import annotations
+
+import io
+import os
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxstyle.play.server import PlayServer
+from tests.test_play import other_skeleton_bvh, tiny_model
+
+CHROMIUM = Path(os.environ.get("JAXSTYLE_CHROMIUM", "/usr/bin/chromium"))
+ARGS = ["--no-sandbox", "--use-gl=swiftshader", "--enable-unsafe-swiftshader", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
+
+
+def _chromium_or_skip() -> Path:
+    if CHROMIUM.is_file():
+        return CHROMIUM
+    reason = f"no browser at {CHROMIUM} (apt-get install chromium; .ci/run does)"
+    if os.environ.get("JAXSTYLE_REQUIRE_BROWSER") == "1":
+        pytest.fail(reason + "; JAXSTYLE_REQUIRE_BROWSER=1 makes this an error")
+    pytest.skip(reason)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(condition, timeout: float, what: str, poll: float = 0.1):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        value = condition()
+        if value:
+            return value
+        time.sleep(poll)
+    raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+
+
+@pytest.fixture(scope="module")
+def browser():
+    executable = _chromium_or_skip()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(executable), args=ARGS)
+        yield b
+        b.close()
+
+
+def open_page(browser, server: PlayServer):
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.goto(server.url)
+    page.wait_for_selector("canvas", timeout=60_000)
+    wait_for(lambda: server._server.get_clients(), 30, "the page to connect")
+    return page
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("play_browser")
+    server = PlayServer(folder, port=free_port(), learn_epochs=1, learn_rates=(0.3,))
+    server.start(model=tiny_model(folder))
+    yield server
+    server.stop()
+
+
+def text_field(page, label: str):
+    """The text input of a viser GUI row by its label (viser's label ``for`` does not name the
+    text input's id, so ``get_by_label`` cannot find it)."""
+    return page.locator(f"xpath=//label[normalize-space()='{label}']/ancestor::p/parent::div"
+                        "/following-sibling::div//input").first
+
+
+def not_blank(png: bytes) -> float:
+    from PIL import Image
+
+    pixels = np.asarray(Image.open(io.BytesIO(png)).convert("L"), dtype=np.float64)
+    return float(pixels.std())
+
+
+def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
+    server = served
+    page = open_page(browser, server)
+    # the character is drawn: the render loop runs and its scene nodes exist
+    frames = server.session.frames
+    wait_for(lambda: server.session.frames > frames + 30 and server._nodes, 30, "the character")
+    wait_for(lambda: "Controller step" in page.inner_text("body"), 30, "the status line")
+    # a click on the middle of the 3-D view: a ray through the camera's look-at point meets the
+    # floor a little beyond the character; the server walks the character there
+    box = page.locator("canvas").first.bounding_box()
+    server.session.stop()
+    wait_for(lambda: server.session.characters[0].stand > 0.999, 20, "the character to stand")
+    time.sleep(1.0)  # the page's view catches up with the standing character
+
+    def view_on_character() -> bool:  # the page reports a camera looking at where the character stands
+        clients = list(server._server.get_clients().values())
+        at = np.asarray(clients[0].camera.look_at) if clients else np.full(3, np.inf)
+        here = server.session.origin()[0]
+        return bool(np.hypot(at[0] - here[0], at[2] - here[1]) < 0.05)
+
+    wait_for(view_on_character, 20, "the page's camera to follow the character")
+    page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    targets = wait_for(lambda: server.session.targets()[0], 20, "the click to set a target")
+    target = np.asarray(targets[0])
+    with server.lock:
+        start = server.session.origin()[0]
+        wanted = np.asarray(server.session.controls().offsets[0, -1])  # where the network is told to go
+    assert 0.5 < np.linalg.norm(target - start) < 10.0, (start, target)
+    toward = (target - start) / np.linalg.norm(target - start)
+    assert wanted @ toward > 0.999 * np.linalg.norm(wanted), (wanted, toward)
+    time.sleep(1.5)
+    now = server.session.origin()[0]
+    assert np.linalg.norm(target - now) < np.linalg.norm(target - start) - 0.1, (start, now, target)
+    # a key: D walks to the camera's right
+    page.keyboard.press("d")
+    steering = wait_for(lambda: server.session.characters[0].steering.mode == "direction"
+                        and server.session.characters[0].steering, 10, "the key to steer")
+    assert abs(np.cos(steering.heading - (server.camera_yaw() - np.pi / 2)) - 1) < 1e-6
+    # the style dropdown
+    before = server.session.characters[0].style
+    other = next(name for name in server.session.styles if name != before)
+    page.get_by_label("Style", exact=True).click()
+    page.get_by_role("option", name=other, exact=True).click()
+    wait_for(lambda: server.session.characters[0].style == other, 10, "the style switch")
+    wait_for(lambda: f"Style: {other}" in page.inner_text("body"), 10, "the page to show it")
+    # a screenshot that shows something
+    time.sleep(0.5)
+    png = page.screenshot(path=str(tmp_path / "play.png"))
+    canvas = page.locator("canvas").first.screenshot()
+    assert not_blank(png) > 5.0 and not_blank(canvas) > 2.0
+    page.close()
+
+
+def test_bad_input_shows_a_message_in_the_page(browser, served, tmp_path):
+    server = served
+    page = open_page(browser, server)
+    # a BVH of another skeleton, by path
+    text_field(page, "BVH path").fill(str(other_skeleton_bvh(tmp_path / "robot.bvh")))
+    page.get_by_text("Learn the style of this file").click()
+    page.get_by_text("another skeleton", exact=False).first.wait_for(timeout=20_000)
+    # a file that is not BVH, uploaded
+    notes = tmp_path / "notes.bvh"
+    notes.write_text("just some notes\n")
+    page.set_input_files("input[type=file]", str(notes))
+    wait_for(lambda: "notes.bvh" in server.message, 20, "the upload to be refused")
+    reason = server.message.rsplit(": ", 1)[-1]  # after "<file>, line N: "
+    page.get_by_text(reason, exact=False).first.wait_for(timeout=20_000)
+    # a run folder with no model
+    empty = tmp_path / "empty_run"
+    empty.mkdir()
+    text_field(page, "Run folder").fill(str(empty))
+    page.get_by_role("button", name="Load this run folder", exact=True).click()
+    page.get_by_text("no base model", exact=False).first.wait_for(timeout=30_000)
+    # the server is alive and still plays the model it had
+    frames = server.session.frames
+    wait_for(lambda: server.session.frames > frames + 10, 10, "the render loop to go on")
+    assert server.learner.state == "idle"
+    page.close()
+
+
+@pytest.mark.slow
+def test_learn_a_style_live_and_record(browser, tmp_path):
+    """A trained tiny base in a run folder: learn a style from an uploaded clip while the
+    character walks, pick it from the dropdown, record BVH + GIF."""
+    from jaxstyle.data import procedural
+    from jaxstyle.mason2018 import pipeline
+
+    root = procedural.write_dataset(tmp_path / "run" / "data", ["Neutral", "Crouched", "Proud"], ["FW"], seconds=10)
+    pipeline.train_base(pipeline.BaseSettings(data=str(root), styles=("Neutral", "Crouched"), hidden=32, rank=4,
+                                              epochs=2), tmp_path / "run" / "base", progress=False, log=lambda _: None)
+    server = PlayServer(tmp_path / "run", port=free_port(), learn_epochs=2).start()
+    try:
+        page = open_page(browser, server)
+        frames = server.session.frames
+        page.set_input_files("input[type=file]", str(root / "Proud" / "Proud_FW.bvh"))
+        wait_for(lambda: server.learner.state == "running", 20, "learning to start")
+        wait_for(lambda: server.learner.state != "running", 600, "learning to finish", poll=1.0)
+        assert server.learner.state == "done", server.learner.message
+        assert server.session.frames > frames + 60  # the character walked on meanwhile
+        assert "Proud_FW" in server.session.styles and server.session.styles["Proud_FW"].kind == "learned"
+        page.get_by_text("learned Proud_FW", exact=False).first.wait_for(timeout=20_000)
+        page.get_by_label("Style", exact=True).click()
+        page.get_by_role("option", name="Proud_FW", exact=True).click()
+        wait_for(lambda: server.session.characters[0].style == "Proud_FW", 10, "the learned style to play")
+        time.sleep(2.0)
+        page.get_by_text("Save the last seconds").click()
+        wait_for(lambda: server.last_recording, 120, "the recording")
+        assert {f.suffix for f in server.last_recording} == {".bvh", ".npz", ".gif"}
+        page.close()
+    finally:
+        server.stop()
