@@ -55,7 +55,10 @@ def test_build_train_finetune_select_report(tiny, tmp_path):
     assert pipeline.film_figure(model, result, tmp_path / "out" / "figure11.png").is_file()
 
 
-@pytest.mark.parametrize("name", [pytest.param("PFNN One-hot", marks=pytest.mark.slow), "PFNN Resad",
+# all three slow (17-40 s each): the default run checks the PFNN gate is the labeller's global phase
+# (tests/test_lpn.py, tests/test_lpn_features.py) and the PFNN models' gradients (tests/test_lpn.py)
+@pytest.mark.parametrize("name", [pytest.param("PFNN One-hot", marks=pytest.mark.slow),
+                                  pytest.param("PFNN Resad", marks=pytest.mark.slow),
                                   pytest.param("PFNN FiLM", marks=pytest.mark.slow)])
 def test_the_pfnn_backbones_train_on_the_global_phase_within_a_budget(tiny, tmp_path, name):
     """Table 2's PFNN-backbone models train on the LPN rows, gated by each row's global phase;
