@@ -57,7 +57,7 @@ from jaxstyle.mason2018.train import TrainData
 from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
-from jaxstyle.train import scan
+from jaxstyle.train import defaults, scan
 from jaxstyle.train.checkpoint import Checkpointer, json_text
 
 # --- 1. hold-out -----------------------------------------------------------------------------------
@@ -129,21 +129,8 @@ def validation_grid(params: dict, adapters_SxR: dict, data: TrainData) -> np.nda
 
 # --- 4. closed-loop check ----------------------------------------------------------------------------
 
-@dataclasses.dataclass(frozen=True)
-class RolloutCheck:
-    """The closed-loop check's path and pass thresholds (see the module docstring)."""
-
-    seconds: float = 5.0
-    turn_deg_per_s: float = 45.0
-    max_bone_error: float = 0.10
-    min_contact_ratio: float = 0.5
-    max_skating_ratio: float = 1.5
-    skating_slack_m_s: float = 0.05
-    min_progress: float = 0.5
-    tolerance_m: float = 0.03
-
-
-ROLLOUT_FIELDS = ("finite", "bone_error", "contact_fraction", "skating_m_s", "progress", "passed")
+RolloutCheck = defaults.RolloutCheck  # the thresholds both papers' checks share (see the module docstring)
+ROLLOUT_FIELDS = defaults.ROLLOUT_FIELDS
 
 
 def _rollout_rates(params, adapters_R, x_norm, y_norm, state, controls):

@@ -46,6 +46,7 @@ from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import viz
+from jaxstyle.train import defaults
 from jaxstyle.train.checkpoint import json_text
 from jaxstyle.train.defaults import FILM_DEFAULT_RATES
 
@@ -426,34 +427,13 @@ def _min_clip_seconds(clip_frames: int, fps: float = 60.0) -> float:
     return (datasets.min_frames(fps) + clip_frames / 0.8 + clip_frames / 2) / fps
 
 
-@dataclasses.dataclass(frozen=True)
-class ClosedLoopCheck:
-    """The closed-loop check of a fine-tuned new style: the 2022 controller
-    (:mod:`jaxstyle.control.lpn_controller`) drives it ``seconds`` along a path turning at
-    ``turn_deg_per_s`` at the clip's median speed, from a frame of the clip. It passes when the
-    rollout stays finite, the bones keep their lengths (mean relative error at most
-    ``max_bone_error``), the feet touch the floor at least ``min_contact_ratio`` times as often as
-    in the clip, they slide at most ``max_skating_ratio`` times (+ ``skating_slack_m_s``) as fast as
-    the model before fine-tuning does on the same path, and the character covers between
-    ``min_progress`` and ``1 / min_progress`` of the path's length (for styles that move). The
-    thresholds are those of the 2018 sweep's check (:class:`jaxstyle.mason2018.selection.RolloutCheck`;
-    the two papers' packages do not import each other)."""
-
-    seconds: float = 5.0
-    turn_deg_per_s: float = 45.0
-    max_bone_error: float = 0.10
-    min_contact_ratio: float = 0.5
-    max_skating_ratio: float = 1.5
-    skating_slack_m_s: float = 0.05
-    min_progress: float = 0.5
-    tolerance_m: float = 0.03
-
-
-CHECK_FIELDS = ("finite", "bone_error", "contact_fraction", "skating_m_s", "progress", "passed")
+ClosedLoopCheck = defaults.RolloutCheck  # the 2018 sweep's check thresholds, one definition for both papers
+CHECK_FIELDS = defaults.ROLLOUT_FIELDS
+DEFAULT_CHECK = ClosedLoopCheck()
 
 
 def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
-                      check: ClosedLoopCheck = ClosedLoopCheck()) -> dict[str, np.ndarray]:
+                      check: ClosedLoopCheck = DEFAULT_CHECK) -> dict[str, np.ndarray]:
     """Drive every (new style, rate) of a fine-tuning sweep and, per new style, the model before
     fine-tuning, in ONE batched rollout; returns ``(S, R)`` arrays named by :data:`CHECK_FIELDS`
     and per style ``(S,)`` references ``real_contact_fraction``, ``speed_m_s``,
@@ -550,7 +530,7 @@ def choose_checked(validation_loss_SxR: np.ndarray, passed_SxR: np.ndarray) -> t
 
 def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
                    rates: Sequence[float] = FINETUNE_RATES, steps: int = 150, epochs: int = 100,
-                   check: ClosedLoopCheck = ClosedLoopCheck(), progress: bool = True
+                   check: ClosedLoopCheck = DEFAULT_CHECK, progress: bool = True
                    ) -> tuple["FinetuneResult", dict[str, np.ndarray], dict[str, Path]]:
     """New styles from the user's clips (``data.new``, :func:`user_clip_data`) the 2022 way: the
     FiLM generator alone fine-tuned for every (clip style, rate) in one compiled sweep

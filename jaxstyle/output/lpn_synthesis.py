@@ -36,7 +36,7 @@ from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.output.synthesis import SynthesisResult, style_rows, write_results
+from jaxstyle.output.synthesis import SynthesisResult, start_states, write_results
 
 
 class LPNCharacter(NamedTuple):
@@ -112,13 +112,8 @@ def synthesize(params: dict, config: StyleModelConfig, normalisers: tuple[Normal
     if LPNLayout(num_bones).input_size != config.input_size:
         raise ValueError(f"the normalisers have {len(x_norm.mean)} inputs, the model {config.input_size}")
     gate_columns = end_effector_columns(skeleton) if config.backbone == "mann" else None
-    starts, speeds = [], []
-    for c in characters:
-        rows = style_rows(c.dataset, c.style)
-        v = own_speed(c.dataset, rows, upm, fps) if speed is None else float(speed)
-        row = loop.start_row(c.dataset.inputs, v, units_per_meter=upm, rows=rows, fps=fps)
-        starts.append(lpn_controller.initial_state(c.dataset.inputs[row], c.dataset.phases[row], num_bones))
-        speeds.append(v)
+    starts, speeds = start_states(characters, upm, fps, lambda ds, row: lpn_controller.initial_state(
+        ds.inputs[row], ds.phases[row], num_bones), speed=speed, speed_of=own_speed)
     pairs = [(s, p) for s in range(len(characters)) for p in path_names]
     signals = [paths.named(p, seconds, speeds[s], units_per_meter=upm, fps=fps) for s, p in pairs]
     args = (params, config, _stack([characters[s].runtime for s, _ in pairs]), x_norm, y_norm,

@@ -42,7 +42,7 @@ from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.nn import pfnn
 from jaxstyle.output import export, metrics
-from jaxstyle.output.synthesis import own_speed, style_rows
+from jaxstyle.output.synthesis import own_speed, start_states, style_rows
 
 PROTOCOL_PATHS = ("straight", "circle", "zigzag", "stop_and_go", "speed_ramp", "waypoints")
 FOLLOW_PATHS = ("straight", "circle", "zigzag")  # the paths of the 0.3 m final-error target
@@ -74,14 +74,8 @@ def run(params: dict, normalisers: tuple[Normaliser, Normaliser], subjects: Sequ
     ``(title, path)``, the network's joint positions and the path's ideal positions (previews)."""
     x_norm, y_norm = normalisers
     upm, fps = estimate_units_per_meter(skeleton), skeleton.fps
-    starts, speeds = [], []
-    for s in subjects:
-        rows = style_rows(s.dataset, s.style)
-        v = own_speed(s.dataset, rows, upm, fps)
-        row = controller.start_row(s.dataset.inputs, v, units_per_meter=upm, rows=rows, fps=fps)
-        starts.append(controller.initial_state(s.dataset.inputs[row], float(s.dataset.phases[row, 0]),
-                                               skeleton.num_joints))
-        speeds.append(v)
+    starts, speeds = start_states(subjects, upm, fps, lambda ds, row: controller.initial_state(
+        ds.inputs[row], float(ds.phases[row, 0]), skeleton.num_joints))
     pairs = [(i, p) for i in range(len(subjects)) for p in path_names]
     signals = [paths.named(p, seconds, speeds[i], units_per_meter=upm, fps=fps) for i, p in pairs]
     adapters = pfnn.stack_adapters([subjects[i].adapter for i, _ in pairs])

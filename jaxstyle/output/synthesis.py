@@ -75,6 +75,23 @@ def _stack(items):
     return jax.tree.map(lambda *v: jnp.stack(v), *items)
 
 
+def start_states(characters: Sequence, units_per_meter: float, fps: float, initial, *,
+                 speed: float | None = None, speed_of=own_speed) -> tuple[list, list[float]]:
+    """Per character (anything with ``dataset`` and ``style``): its walking speed (``speed``, or its
+    style's own, ``speed_of(dataset, rows, units_per_meter, fps)``) and a start state
+    ``initial(dataset, row)`` at a frame of its style moving near that speed
+    (:func:`jaxstyle.control.loop.start_row`). Both controllers' synthesis and the quality benchmark
+    start their characters this way."""
+    starts, speeds = [], []
+    for c in characters:
+        rows = style_rows(c.dataset, c.style)
+        v = speed_of(c.dataset, rows, units_per_meter, fps) if speed is None else float(speed)
+        row = controller.start_row(c.dataset.inputs, v, units_per_meter=units_per_meter, rows=rows, fps=fps)
+        starts.append(initial(c.dataset, row))
+        speeds.append(v)
+    return starts, speeds
+
+
 def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], characters: Sequence[Character],
                skeleton: Motion, out: str | Path, *, path_names: Sequence[str] = ("circle",), seconds: float = 8.0,
                speed: float | None = None, foot_ik: bool = False, gif: bool = True, mp4: bool = False,
@@ -109,14 +126,8 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
     upm = estimate_units_per_meter(skeleton)
     fps = skeleton.fps
     stacked = pfnn.stack_adapters([c.adapter for c in characters])
-    starts, speeds = [], []
-    for c in characters:
-        rows = style_rows(c.dataset, c.style)
-        v = own_speed(c.dataset, rows, upm, fps) if speed is None else float(speed)
-        row = controller.start_row(c.dataset.inputs, v, units_per_meter=upm, rows=rows, fps=fps)
-        starts.append(controller.initial_state(c.dataset.inputs[row], float(c.dataset.phases[row, 0]),
-                                               skeleton.num_joints))
-        speeds.append(v)
+    starts, speeds = start_states(characters, upm, fps, lambda ds, row: controller.initial_state(
+        ds.inputs[row], float(ds.phases[row, 0]), skeleton.num_joints), speed=speed)
     pairs = [(s, p) for s in range(len(characters)) for p in path_names]
     signals = [paths.named(p, seconds, speeds[s], units_per_meter=upm, fps=fps) for s, p in pairs]
     which = np.asarray([s for s, _ in pairs])

@@ -1,9 +1,38 @@
 """Defaults shared by both papers' workflows, in one place and free of JAX, so the command line can
 show them in ``--help`` without loading a numerical library."""
 
+import dataclasses
+
 DEFAULT_RATES: tuple[float, ...] = (0.3, 0.5, 0.7)
 """The few-shot dropout rates of Mason et al. 2018 (their code's keep probabilities 0.7 / 0.5 / 0.3)."""
 
 FILM_DEFAULT_RATES: tuple[float, ...] = (0.1, 0.3, 0.5)
 """Dropout rates of the 2022 FiLM generator sweep: lower than the 2018 adapters'
 (:data:`DEFAULT_RATES`), the generator being trained with 0.3."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RolloutCheck:
+    """The closed-loop check of a fine-tuned new style, both papers' (the 2018 adapters' in
+    :mod:`jaxstyle.mason2018.selection`, the 2022 FiLM generators' in
+    :func:`jaxstyle.mason2022.pipeline.closed_loop_check`): the controller drives the style
+    ``seconds`` along a path turning at ``turn_deg_per_s`` at the clip's median speed, from a frame
+    of the clip. It passes when the rollout stays finite, the bones keep their lengths (mean
+    relative error at most ``max_bone_error``), the feet touch the floor at least
+    ``min_contact_ratio`` times as often as in the clip, they slide at most ``max_skating_ratio``
+    times (+ ``skating_slack_m_s``) as fast as the model before fine-tuning does on the same path,
+    and the character covers between ``min_progress`` and ``1 / min_progress`` of the path's length
+    (for styles that move)."""
+
+    seconds: float = 5.0
+    turn_deg_per_s: float = 45.0
+    max_bone_error: float = 0.10
+    min_contact_ratio: float = 0.5
+    max_skating_ratio: float = 1.5
+    skating_slack_m_s: float = 0.05
+    min_progress: float = 0.5
+    tolerance_m: float = 0.03
+
+
+ROLLOUT_FIELDS = ("finite", "bone_error", "contact_fraction", "skating_m_s", "progress", "passed")
+"""The per-(style, rate) figures of a :class:`RolloutCheck`, in report order."""
