@@ -95,6 +95,9 @@ def not_blank(png: bytes) -> float:
 def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
     server = served
     page = open_page(browser, server)
+    client = next(iter(server._server.get_clients().values()))
+    reported = []  # the views the page itself reports (not the server's copy of what it was sent)
+    client.camera.on_update(lambda cam: reported.append((np.asarray(cam.position), np.asarray(cam.look_at))))
     # the character is drawn: the render loop runs and its scene nodes exist
     frames = server.session.frames
     wait_for(lambda: server.session.frames > frames + 30 and server._nodes, 30, "the character")
@@ -104,18 +107,23 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
     box = page.locator("canvas").first.bounding_box()
     server.session.stop()
     wait_for(lambda: server.session.characters[0].stand > 0.999, 20, "the character to stand")
-    time.sleep(1.0)  # the page's view catches up with the standing character
 
-    def view_on_character() -> bool:  # the page reports a camera looking at where the character stands
-        clients = list(server._server.get_clients().values())
-        at = np.asarray(clients[0].camera.look_at) if clients else np.full(3, np.inf)
+    def page_views_character():
         here = server.session.origin()[0]
-        return bool(np.hypot(at[0] - here[0], at[2] - here[1]) < 0.05)
+        if reported and np.hypot(*(reported[-1][1][[0, 2]] - here)) < 0.05:
+            return reported[-1]
+        return None
 
-    wait_for(view_on_character, 20, "the page's camera to follow the character")
+    # the camera follows: the page's own report puts its look-at point on the standing character
+    # (a regression test: the follow once set look_at before position, and viser's position
+    # setter moves look_at along, so the page looked at the wrong place)
+    position, look_at = wait_for(page_views_character, 20, "the page's camera to follow the character")
+    ray = look_at - position
+    floor = (position + ray * (-position[1] / ray[1]))[[0, 2]]  # where the middle of the view meets y = 0
     page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     targets = wait_for(lambda: server.session.targets()[0], 20, "the click to set a target")
     target = np.asarray(targets[0])
+    assert np.linalg.norm(target - floor) < 0.05, (target, floor)  # the click's ray met the floor there
     with server.lock:
         start = server.session.origin()[0]
         wanted = np.asarray(server.session.controls().offsets[0, -1])  # where the network is told to go

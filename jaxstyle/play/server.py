@@ -122,7 +122,6 @@ class PlayServer:
         self._nodes: list = []  # per character: (bones, joints, future) handles
         self._target_node = None
         self._server = None
-        self._follow_at = None
         self._cam_offset = np.array([2.2, 1.4, -3.6])
 
     # --- life cycle ---------------------------------------------------------------------------
@@ -304,23 +303,29 @@ class PlayServer:
         if not self._gui["follow"].value:
             return
         at = np.array([frame.origin[0, 0], 0.9, frame.origin[0, 1]])
-        if self._follow_at is not None and np.linalg.norm(at - self._follow_at) < 0.01:
-            return
-        self._follow_at = at
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a page closing meanwhile
             for client in self._server.get_clients().values():
+                # per page, so a page that connects later (or whose own report lagged) is put right too
+                view = _view(client)
+                if view is None or np.linalg.norm(view[1] - at) < 0.01:
+                    continue
                 with client.atomic():
-                    client.camera.look_at = at
+                    # position first: viser's position setter moves look_at by the same offset
+                    # (keeping the view's direction), so setting look_at last is what leaves the
+                    # page looking at the character
                     client.camera.position = at + self._cam_offset
+                    client.camera.look_at = at
 
     def _on_follow(self) -> None:
         """Keep the current view's angle and distance when following is switched on."""
-        self._follow_at = None
         if not self._gui["follow"].value:
             return
         for client in self._server.get_clients().values():
-            offset = np.asarray(client.camera.position) - np.asarray(client.camera.look_at)
+            view = _view(client)
+            if view is None:
+                continue
+            offset = view[0] - view[1]
             if np.isfinite(offset).all() and 0.5 < np.linalg.norm(offset) < 50:
                 self._cam_offset = offset
             break
@@ -328,7 +333,10 @@ class PlayServer:
     def camera_yaw(self) -> float:
         """The yaw of the first page's view direction (0: looking along +Z)."""
         for client in self._server.get_clients().values():
-            d = np.asarray(client.camera.look_at) - np.asarray(client.camera.position)
+            view = _view(client)
+            if view is None:
+                continue
+            d = view[1] - view[0]
             if np.hypot(d[0], d[2]) > 1e-6:
                 return float(math.atan2(d[0], d[2]))
         return 0.0
@@ -535,6 +543,15 @@ class PlayServer:
                 self.show_error(f"recording: {_one_line(e)}")
 
         threading.Thread(target=save, name="jaxstyle-play-record", daemon=True).start()
+
+
+def _view(client) -> tuple[np.ndarray, np.ndarray] | None:
+    """A page's camera ``(position, look_at)``, or None before the page has reported one (viser's
+    camera getters assert on a page that has not)."""
+    try:
+        return np.asarray(client.camera.position), np.asarray(client.camera.look_at)
+    except AssertionError:
+        return None
 
 
 def _smooth(old: float, new: float, keep: float = 0.9) -> float:
