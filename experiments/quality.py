@@ -1,7 +1,7 @@
 """The motion-quality benchmark of issue 19: does generated locomotion follow the path, stop, and
 keep its feet planted as well as the capture it learnt from?
 
-    python experiments/quality.py [--small] [--run runs/quality] [--no-contacts]
+    python experiments/quality.py [--small] [--run runs/quality] [--no-contacts] [--lpn runs/mason2022]
 
 Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output):
 
@@ -27,11 +27,19 @@ Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output)
    stop; jitter; ankle jerk; each beside the style's capture; the issue's targets checked.
 6. Diagnosis (:func:`jaxstyle.output.quality.diagnose`) of the first base style and the first
    few-shot set.
+7. The 2022 models (issue 19 item 5): every model trained into ``--lpn`` (a model's folder, or a
+   run folder of them such as ``runs/mason2022`` of ``experiments/mason2022_table2.py``; default
+   ``runs/mason2022``, skipped with a line when it holds none) is reloaded
+   (:func:`jaxstyle.mason2022.synthesis.load_model`) and its training styles (and the new styles
+   its FiLM generator was fine-tuned on, when the folder has them) are driven by the 2022
+   controller along the same paths, at the same speeds rule, with the same path-following law,
+   and measured by the same function beside the same captures
+   (:func:`jaxstyle.output.quality.run_lpn`); a model the controller cannot drive is skipped
+   with one line saying why. Rows carry a ``model`` column.
 
 Writes to ``--run``: ``quality.csv``, ``quality.md`` (the table, the targets, the diagnosis),
 ``quality.png`` (bars: generated vs capture), ``contact_sheet.png``. Trained models are kept in
-``--run/base`` and ``--run/sweep`` and reused on a re-run. The 2022 LPN-FiLM is measured by its
-own controller's pipeline (issue 19 item 5, another module); this script covers the 2018 models.
+``--run/base`` and ``--run/sweep`` and reused on a re-run; the 2022 models are only read.
 """
 
 from __future__ import annotations
@@ -44,9 +52,47 @@ from pathlib import Path
 import jax
 
 import jaxstyle as js
-from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, available_styles
+from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, PipelineError, available_styles
 from jaxstyle.mason2018 import pipeline, selection
+from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import preview, quality
+
+
+def model_dirs(folder: Path) -> list[Path]:
+    """The 2022 model folders in ``folder``: itself when it holds a model (``config.json``), else
+    its sub-folders that do."""
+    if (folder / "config.json").is_file():
+        return [folder]
+    return sorted(d for d in folder.iterdir() if (d / "config.json").is_file()) if folder.is_dir() else []
+
+
+def lpn_rows(folder: Path, cache: Path, seconds: float) -> list[dict]:
+    """Step 7 of the protocol: the quality rows of every 2022 model in ``folder``."""
+    dirs = model_dirs(folder)
+    if not dirs:
+        print(f"2022 models: none in {folder} (train them with experiments/mason2022_table2.py or "
+              "`jaxstyle lpn`); skipped")
+        return []
+    rows = []
+    for d in dirs:
+        t0 = time.perf_counter()
+        try:
+            loaded = synthesis2022.load_model(d, cache=cache)
+            model = loaded.model
+            chosen = d / "chosen_rates.json"
+            new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
+            chars = synthesis2022.characters(loaded, styles=model.data.styles, new_styles=new)
+        except PipelineError as e:
+            print(f"2022 model {d.name}: skipped ({e})")
+            continue
+        subjects = [quality.subject(c, "base" if i < len(model.data.styles) else "few-shot", model.name)
+                    for i, c in enumerate(chars)]
+        got, _ = quality.run_lpn(model.params, model.config, loaded.data.base.normalisers(), subjects,
+                                 loaded.data.skeleton, seconds=seconds)
+        rows += got
+        print(f"2022 model {model.name} ({loaded.epochs} epochs, {d}): {len(subjects)} characters measured "
+              f"({time.perf_counter() - t0:.0f} s)")
+    return rows
 
 
 def main() -> None:
@@ -55,6 +101,11 @@ def main() -> None:
     parser.add_argument("--run", type=Path, default=None, help="run folder (default runs/quality[_small])")
     parser.add_argument("--no-contacts", action="store_true", help="the paper's output layout, without contacts")
     parser.add_argument("--seconds", type=float, default=quality.SECONDS, help="seconds per path")
+    parser.add_argument("--lpn", type=Path, default=Path("runs/mason2022"),
+                        help="a trained 2022 model's folder, or a run folder of them (default runs/mason2022)")
+    parser.add_argument("--lpn-cache", type=Path, default=Path("runs/cache"),
+                        help="the 2022 models' LPN row cache (default runs/cache, experiments/mason2022_styles.py's)")
+    parser.add_argument("--no-lpn", action="store_true", help="measure the 2018 models only")
     a = parser.parse_args()
     run = a.run or Path("runs/quality_small" if a.small else "runs/quality")
     run.mkdir(parents=True, exist_ok=True)
@@ -91,6 +142,9 @@ def main() -> None:
     t1 = time.perf_counter()
     rows, drawn = quality.run(base.params, base.normalisers, subjects, base.skeleton, seconds=a.seconds)
     t_measure = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds)
+    t_lpn = time.perf_counter() - t1
     checks = quality.targets(rows)
     diag = [quality.diagnose(base.params, base.normalisers, s, base.skeleton)
             for s in (subjects[0], *(s for s in subjects if s.kind == "few-shot"))][:2]
@@ -102,7 +156,7 @@ def main() -> None:
     size = (f"{'SMALL preset: ' if a.small else ''}hidden {settings.hidden}, rank {settings.rank}, "
             f"{settings.epochs} epochs, contacts {'on' if settings.contacts else 'off'}")
     timing = (f"base {t_base:.0f} s, sweep {t_sweep:.0f} s, rollouts and measures {t_measure:.0f} s, "
-              f"all {time.perf_counter() - t0:.0f} s")
+              f"2022 models {t_lpn:.0f} s, all {time.perf_counter() - t0:.0f} s")
     lines = [f"# Motion quality ({size})", "", timing, "", *quality.table(rows), "", "## Targets", "",
              *quality.target_summary(checks), "", "## Diagnosis", ""]
     for d in diag:

@@ -59,7 +59,8 @@ def _point(style, state, control):
 
 
 def _run(step, signal, start, follow):
-    controls = loop.signal_controls(signal, follow_seconds=follow)
+    # gain 1: these ideal trackers go where they are told (loop.FOLLOW_GAIN is for the networks)
+    controls = loop.signal_controls(signal, follow_seconds=follow, follow_gain=1.0)
     return np.asarray(jax.jit(lambda s, c: loop.scan_frames(step, None, s, c))(start, controls))
 
 
@@ -74,6 +75,19 @@ def test_gains_grow_with_the_look_ahead_and_vanish_open_loop():
     np.testing.assert_array_equal(loop.follow_gains(None), 0.0)
     with pytest.raises(ValueError, match="follow_seconds"):
         loop.follow_gains(-1.0)
+
+
+def test_the_follow_gain_scales_every_sample_and_must_be_finite():
+    sig = paths.zigzag(2.0, 1.2, fps=FPS)
+    one = loop.signal_controls(sig, follow_gain=1.0)
+    four = loop.signal_controls(sig, follow_gain=4.0)
+    np.testing.assert_allclose(np.asarray(four.gain), 4.0 * np.asarray(one.gain), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(one.gain[0]), loop.follow_gains(loop.FOLLOW_SECONDS), rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(loop.signal_controls(sig).gain), np.asarray(
+        loop.signal_controls(sig, follow_gain=loop.FOLLOW_GAIN).gain))
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="follow_gain"):
+            loop.signal_controls(sig, follow_gain=bad)
 
 
 def test_steer_adds_the_position_error_with_the_gains():
@@ -143,7 +157,7 @@ def test_stand_amount_ramps_in_before_a_stop():
 
 def test_live_step_follows_like_the_scan():
     sig = paths.circle(2.0, 1.2, 2.0, fps=FPS)
-    controls = loop.signal_controls(sig)
+    controls = loop.signal_controls(sig, follow_gain=1.0)
     step = loop.live_step(_point, None)
     state, start = _start((0.5, 0.0)), _start((0.5, 0.0))
     got = []

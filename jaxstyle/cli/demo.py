@@ -39,7 +39,14 @@ One command from nothing to a stylised animation (Mason et al. 2018 end to end):
 3. a few-shot sweep learns each held-out style (Limping, Proud; or the paper's Aeroplane,
    Elated and Rushed on 100STYLE) from one clip of --seconds, at every dropout rate, in one
    compiled program, and chooses a rate per style (RUN/sweep: results.csv, heatmap.png);
-4. base and few-shot styles walk a path (RUN/synthesis: a GIF, BVH files, quality.csv).
+4. base and few-shot styles walk a path (RUN/synthesis: a GIF, BVH files, quality.csv);
+5. the same characters walk the quality benchmark's target paths (straight, circle, zigzag and
+   stop_and_go, --synth-seconds each, at each style's own speed): the table of
+   experiments/quality.py (jaxstyle.output.quality: skating of the network's joints, of the
+   exported BVH and after contact IK, bone error, path error, heading, time to stop, jitter,
+   beside each style's capture) and the issue's path and stop targets (final path error <= 0.3 m
+   on straight, circle and zigzag; stopped within 0.5 s) marked pass or FAIL
+   (RUN/synthesis/quality_targets.csv; --no-quality skips it).
 
 About 5 minutes on a 2-core CPU with the defaults. Re-running resumes or reuses the base.
 
@@ -47,7 +54,8 @@ About 5 minutes on a 2-core CPU with the defaults. Re-running resumes or reuses 
 trained with a smaller preset than the paper's (see --hidden, --filters, --generator-hidden,
 --lpn-epochs, --learning-rate; RUN/lpn), its FiLM generator fine-tuned on the held-out styles
 (--finetune-steps), then base styles, a fine-tuned style and a FiLM blend along the paths
-(RUN/synthesis/lpn-film: GIF, BVH files, quality.csv).
+(RUN/synthesis/lpn-film: GIF, BVH files, quality.csv), and the same quality table and targets
+(RUN/synthesis/lpn-film/quality_targets.csv).
 """
 DEMO_MAX_BASE_STYLES = 8
 DEMO_MODELS = ("pfnn", "lpn-film", "lpn-onehot", "lpn-resad", "mann-film")
@@ -63,6 +71,8 @@ def add_arguments(p) -> None:
     add_sweep_args(p, epochs=40)
     add_synth_args(p, paths=("circle",), seconds=8.0)
     p.add_argument("--data-seconds", type=float, default=24.0, help="seconds of each procedural clip")
+    p.add_argument("--no-quality", action="store_true",
+                   help="skip the quality table on the benchmark's target paths (step 5)")
     p.add_argument("--model", choices=DEMO_MODELS, default="pfnn",
                    help="pfnn: the 2018 pipeline; lpn-film (or another LPN/MANN model of the 2022 paper's Table 2): "
                         "the 2022 pipeline")
@@ -122,6 +132,26 @@ def _data_root(args, run: Run) -> Path:
     return root
 
 
+def report_quality(run: Run, args, measure, out: Path) -> Path:
+    """Step 5: ``measure(path_names, seconds)`` (:func:`jaxstyle.output.quality.run` or
+    :func:`~jaxstyle.output.quality.run_lpn` on the demo's characters) along the benchmark's target
+    paths; print the benchmark's table (:func:`jaxstyle.output.quality.table`, as
+    ``experiments/quality.py`` prints it) and the path and stop targets with pass/FAIL marks
+    (:func:`jaxstyle.output.quality.target_marks`); write the rows to ``out`` (CSV)."""
+    from jaxstyle.output import quality
+
+    t0 = time.perf_counter()
+    rows, _ = measure(quality.TARGET_PATHS, args.synth_seconds)
+    run.say("")
+    run.say(f"quality on the benchmark's target paths ({', '.join(quality.TARGET_PATHS)}; {args.synth_seconds:g} s "
+            f"each at each style's own speed; {elapsed(t0)}), the measures of experiments/quality.py (skating of the "
+            "network's joints / the exported BVH / the BVH after contact IK, beside each style's capture):")
+    for line in ["", *quality.table(rows), "", *quality.target_marks(quality.targets(rows))]:
+        run.say(line)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return quality.write_csv(rows, out)
+
+
 def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
     """The 2022 pipeline end to end: LPN rows, a style model (the demo's smaller FiLM generator),
     FiLM fine-tuning on the held-out styles, characters (and a FiLM blend) along the paths."""
@@ -170,6 +200,10 @@ def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
         base_styles = list(model.data.styles[:3])
     synth = synthesize_lpn_and_report(run, args, loaded, base_styles, sets, run.dir / "synthesis" / args.model,
                                       blend=blend)
+    if not args.no_quality:
+        files.append(report_quality(run, args, lambda names, seconds: lpn_quality(loaded, base_styles, sets, names,
+                                                                                  seconds),
+                                    run.dir / "synthesis" / args.model / "quality_targets.csv"))
     run.say("")
     bvh = run.dir / "synthesis" / args.model / "bvh" / f"({sum(f.suffix == '.bvh' for f in synth.files)} BVH files)"
     written(run, "written", files + [f for f in synth.files if f.suffix in (".gif", ".mp4", ".csv", ".png")] + [bvh])
@@ -199,10 +233,40 @@ def run(args, run: Run) -> None:
     _, report, shots = sweep_and_report(run, args, base, specs)
     chosen = json.loads(report["chosen"].read_text())
     base_styles = [s for s in ("Neutral", "Crouched") if s in base.dataset.styles] or list(base.dataset.styles[:1])
-    synth = synthesize_and_report(run, args, base, shots, chosen, base_styles, pipeline.default_sets(chosen))
+    sets = pipeline.default_sets(chosen)
+    synth = synthesize_and_report(run, args, base, shots, chosen, base_styles, sets)
+    files = [run.dir / "base", report["csv"], report["heatmap"], report["chosen"]]
+    if not args.no_quality:
+        files.append(report_quality(run, args, lambda names, seconds: pfnn_quality(
+            base, run.dir / "sweep", shots, chosen, base_styles, sets, names, seconds),
+            run.dir / "synthesis" / "quality_targets.csv"))
     run.say("")
-    written(run, "written", [run.dir / "base", report["csv"], report["heatmap"], report["chosen"]]
-            + [f for f in synth.files if f.suffix in (".gif", ".mp4", ".csv", ".png")]
+    written(run, "written", files + [f for f in synth.files if f.suffix in (".gif", ".mp4", ".csv", ".png")]
             + [run.dir / "synthesis" / "bvh" / f"({sum(f.suffix == '.bvh' for f in synth.files)} BVH files)"])
     run.say(f"config and log: {run.dir / 'config.json'}, {run.dir / 'log.txt'}")
     run.say(f"demo finished in {elapsed(t_all)}")
+
+
+def pfnn_quality(base, sweep_dir: Path, shots, chosen: dict, base_styles: Sequence[str], sets: Sequence[str],
+                 path_names: Sequence[str], seconds: float):
+    """The demo's 2018 characters (base styles, few-shot sets) measured by :func:`jaxstyle.output.quality.run`."""
+    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.output import quality
+
+    chars = pipeline.characters(base, sweep_dir, shots, chosen, base_styles=base_styles, fewshot_sets=sets)
+    subjects = [quality.subject(c, "base" if i < len(base_styles) else "few-shot") for i, c in enumerate(chars)]
+    return quality.run(base.params, base.normalisers, subjects, base.skeleton, path_names=path_names, seconds=seconds)
+
+
+def lpn_quality(loaded, base_styles: Sequence[str], sets: Sequence[str], path_names: Sequence[str], seconds: float):
+    """A loaded 2022 model's characters (training styles, fine-tuned new styles; not the blend, which
+    has no capture of its own) measured by :func:`jaxstyle.output.quality.run_lpn`."""
+    from jaxstyle.mason2022 import synthesis as synthesis2022
+    from jaxstyle.output import quality
+
+    chars = synthesis2022.characters(loaded, styles=base_styles, new_styles=sets)
+    subjects = [quality.subject(c, "base" if i < len(base_styles) else "few-shot", loaded.model.name)
+                for i, c in enumerate(chars)]
+    model = loaded.model
+    return quality.run_lpn(model.params, model.config, loaded.data.base.normalisers(), subjects, loaded.data.skeleton,
+                           path_names=path_names, seconds=seconds)

@@ -21,10 +21,12 @@ error, jitter, beside real clips of each style).
 adapters) of RUN/base and RUN/sweep, written to RUN/synthesis.
 
 --model lpn-film (Mason, Starke & Komura 2022; or another trained Table 2 model: lpn-onehot,
-lpn-resad, mann-film): the model trained by `jaxstyle lpn` into RUN/lpn (or --model-dir), its
-training styles (--base-styles; their FiLM vectors) and the new styles its FiLM generator was
-fine-tuned on (--sets), written to RUN/synthesis/<model>. --blend-weights W W [W] adds a 2- or
-3-way blend of the first characters (FiLM vectors interpolated, the paper's section 4.4).
+lpn-resad, mann-film, pfnn-film, pfnn-onehot, pfnn-resad): the model trained by `jaxstyle lpn`
+into RUN/lpn (or --model-dir), its training styles (--base-styles; their FiLM vectors) and the new
+styles its FiLM generator was fine-tuned on (--sets), written to RUN/synthesis/<model>.
+--blend-weights W W [W] adds a 2- or 3-way blend of the first characters (FiLM vectors
+interpolated, the paper's section 4.4). The PFNN-backbone models run at a global phase the
+controller carries and advances (jaxstyle.control.lpn_controller).
 """
 
 

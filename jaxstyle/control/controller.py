@@ -102,15 +102,16 @@ def advance(state: RolloutState, y: jax.Array, num_joints: int, stand=0.0) -> tu
     ``stand`` in ``[0, 1]`` (:func:`jaxstyle.control.loop.stand_amount`): how much the user asks
     to stand still. As in the PFNN demo (Holden et al. 2017's runtime, which the 2018 paper
     reuses), the root's translation and turn are scaled by ``m = (1 - stand) ** 0.25`` and the
-    phase advance by ``0.1 + 0.9 m``: a network whose training data have few clean stops drifts
+    phase advance by ``0.1 + 0.9 m`` (:func:`jaxstyle.control.loop.stand_damping`, shared with the
+    2022 controller): a network whose training data have few clean stops drifts
     on at a few cm/s after a stop command otherwise. The frame's recorded ``outputs`` hold the
     root motion and phase change as applied (scaled, the phase change clipped at 0)."""
     origin, yaw = state.hist_xz[-1], state.hist_yaw[-1]
-    move = jnp.power(jnp.clip(1.0 - stand, 0.0, 1.0), 0.25)
+    move, phase_scale = loop.stand_damping(stand)
     gx, gz = rotate_xz(move * y[0], move * y[1], yaw)
     new_origin = origin + jnp.stack([gx, gz])
     new_yaw = yaw + move * y[2]
-    dphase = (0.1 + 0.9 * move) * jnp.maximum(y[3], 0.0)
+    dphase = phase_scale * jnp.maximum(y[3], 0.0)
     new_phase = jnp.mod(state.phase + dphase, 1.0)
     g = PFNNLayout(num_joints).output_groups
     local = y[g["joint_position"]].reshape(num_joints, 3)

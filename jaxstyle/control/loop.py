@@ -40,6 +40,26 @@ FOLLOW_SECONDS = 0.25
 (:func:`follow_gains`)."""
 
 
+FOLLOW_GAIN = 4.0
+"""Default gain of the path-following law for the networks (:func:`path_controls`): each future
+sample aims ``FOLLOW_GAIN`` times the share of the position error :func:`follow_gains` gives it.
+
+Why not 1: a network does not move where its future trajectory points the way an ideal tracker
+does. Its input blends the user's samples with its own previous prediction
+(:func:`trajectory_input`, near samples weigh 0.28-0.75 with blend bias 1.5) and its speed is held by
+the gait it has learnt, so it realises only part of a correction. Measured on the 2018 base of
+``experiments/quality.py``: driven at the style's own speed with gain 1, the characters settle at
+their path's speed but 0.2-0.7 m ahead of their ideal position, and the error stays (a proportional
+law's steady offset; ``follow_seconds`` 0.1 instead of 0.25 changes it by under 0.05 m).
+
+How 4 was chosen, on models other than the one the quality benchmark reports: the closed-loop
+final error on 8 s straight, circle and zigzag paths of the procedural ``jaxstyle demo`` model
+(4 base styles, 4 few-shot sets: paths within 0.3 m for gains 1, 2, 3, 4, 6: 10, 15, 16, 17, 16 of
+24) and of ``experiments/quality.py --small`` (21 paths: 13, 19, 21, 21, 21). For an ideal tracker
+(``tests/test_path_following.py``) a gain above 1 over-aims, so the kinematic tests use 1; a
+tracker that realises a quarter of a correction needs 4 to close the error."""
+
+
 class Controls(NamedTuple):
     """Per frame ``t``: the user's path ``offsets (T, 6, 2)``, the ground displacement from frame
     ``t`` to ``t + 10 k`` (k = 0 .. 5), global, and the desired facing yaw ``yaw (T, 6)`` there.
@@ -114,6 +134,18 @@ def stand_amount(velocity_Tx2, fps: float = 60.0, *, relative: float = 0.1) -> n
     return (c[n:n + len(v)] - c[:len(v)]) / n
 
 
+def stand_damping(stand) -> tuple[jax.Array, jax.Array]:
+    """``(move, phase_scale)`` for a standing amount ``stand`` in ``[0, 1]`` (:func:`stand_amount`),
+    as the PFNN demo applies its ``gait_stand`` (Holden et al. 2017's runtime, reused by Mason et
+    al. 2018): the root's translation and turn are scaled by ``move = (1 - stand) ** 0.25`` and the
+    phase advance by ``phase_scale = 0.1 + 0.9 move``. Both controllers use it
+    (:func:`jaxstyle.control.controller.advance`, :func:`jaxstyle.control.lpn_controller.advance`):
+    networks whose training data have few clean stops drift on at a few cm/s after a stop command
+    otherwise. ``stand = 0``: ``(1, 1)``, nothing damped."""
+    move = jnp.power(jnp.clip(1.0 - jnp.asarray(stand, jnp.float32), 0.0, 1.0), 0.25)
+    return move, 0.1 + 0.9 * move
+
+
 def rotate_xz(x, z, a):
     """Ground vectors ``(x, z)`` rotated by yaw ``a`` (the convention of
     :func:`jaxstyle.motion.character_frame.rotate_yaw`)."""
@@ -121,12 +153,13 @@ def rotate_xz(x, z, a):
     return x * c + z * s, -x * s + z * c
 
 
-def path_controls(velocity_Tx2, yaw_T, fps: float = 60.0, *, follow_seconds: float | None = FOLLOW_SECONDS
-                  ) -> Controls:
+def path_controls(velocity_Tx2, yaw_T, fps: float = 60.0, *, follow_seconds: float | None = FOLLOW_SECONDS,
+                  follow_gain: float = FOLLOW_GAIN) -> Controls:
     """:class:`Controls` from a desired ground velocity (units per second, global x and z) and
     facing yaw (radians) per frame. Past the last frame the last values hold. The path's ideal
     positions (the integrated velocity from the origin) are the targets of the path-following law
-    with time constant ``follow_seconds`` (:func:`follow_gains`; ``None``: open loop)."""
+    with time constant ``follow_seconds`` (:func:`follow_gains`; ``None``: open loop), scaled by
+    ``follow_gain`` (:data:`FOLLOW_GAIN`, for the networks; 1 for an ideal tracker)."""
     v = np.asarray(velocity_Tx2, dtype=np.float64)
     yaw = np.asarray(yaw_T, dtype=np.float64)
     if v.ndim != 2 or v.shape[1] != 2 or yaw.shape != (len(v),):
@@ -140,16 +173,20 @@ def path_controls(velocity_Tx2, yaw_T, fps: float = 60.0, *, follow_seconds: flo
     t = np.arange(len(velocity_Tx2))[:, None] + SPACING * np.arange(FUTURE_SAMPLES)[None]
     offsets = disp[t] - disp[t[:, :1]]
     n = len(velocity_Tx2)
-    gain = np.broadcast_to(follow_gains(follow_seconds), (n, FUTURE_SAMPLES))
+    if not np.isfinite(follow_gain) or follow_gain < 0:
+        raise ValueError(f"follow_gain must be >= 0, got {follow_gain}")
+    gain = np.broadcast_to(follow_gain * follow_gains(follow_seconds), (n, FUTURE_SAMPLES))
     return Controls(jnp.asarray(offsets, jnp.float32), jnp.asarray(yaw[t], jnp.float32),
                     jnp.asarray(disp[:n], jnp.float32), jnp.asarray(gain, jnp.float32),
                     jnp.asarray(stand_amount(velocity_Tx2, fps), jnp.float32))
 
 
-def signal_controls(signal: PathSignal, *, follow_seconds: float | None = FOLLOW_SECONDS) -> Controls:
+def signal_controls(signal: PathSignal, *, follow_seconds: float | None = FOLLOW_SECONDS,
+                    follow_gain: float = FOLLOW_GAIN) -> Controls:
     """:class:`Controls` of a :class:`jaxstyle.control.paths.PathSignal` (velocity and facing per
-    frame), following its positions (:func:`follow_gains`; ``None``: open loop)."""
-    return path_controls(signal.velocity, signal.yaw, signal.fps, follow_seconds=follow_seconds)
+    frame), following its positions (:func:`follow_gains`, :data:`FOLLOW_GAIN`; ``None``: open loop)."""
+    return path_controls(signal.velocity, signal.yaw, signal.fps, follow_seconds=follow_seconds,
+                         follow_gain=follow_gain)
 
 
 def turning_path(num_frames: int, speed: float, turn_rate: float, fps: float = 60.0,

@@ -20,7 +20,29 @@ Each frame:
   input;
 * local phases: the network predicts both the next phases ``P~_{t+1}`` and the update ``dP``; the
   carried phases become their average, ``P_{t+1} = (P~_{t+1} + P_t + dP) / 2`` (Starke et al.
-  2020's runtime blends the two estimates the same way, which keeps the phases from drifting).
+  2020's runtime blends the two estimates the same way, which keeps the phases from drifting);
+* the global phase ``phi`` (cycles), the expert blend of Table 2's PFNN-backbone models (PFNN
+  One-hot, PFNN Resad, PFNN FiLM: the network is evaluated at ``phi``), advances by
+  :func:`global_phase_advance` (below); the LPN and MANN backbones carry it too but do not read it;
+* standing: the user's standing amount (:func:`jaxstyle.control.loop.stand_damping`, the PFNN
+  demo's ``gait_stand``) damps the root's translation and turn and the phases' advance exactly as
+  in the 2018 controller (:func:`jaxstyle.control.controller.advance`); with ``stand = 0`` (no
+  stand in the controls) nothing changes.
+
+The global phase's advance. The authors' PFNN baseline predicts 327 values, one of them the global
+phase's change, as the 2018 PFNN does (:meth:`jaxstyle.nn.style_models.StyleModelConfig.paper`);
+jaxstyle's seven Table 2 models all predict the same 342-value LPN row (comparable test MSE,
+:func:`jaxstyle.mason2022.pipeline.model_config`), which has no global-phase change. The advance is
+derived from what the row does have, the local phases: ``omega_t``, the amplitude-weighted
+circular mean of the 4 local phases' advance from ``P_t`` to ``P_{t+1}`` (the angle of
+``sum_b conj(z_b,t) z_b,t+1`` with ``z = cos + i sin`` of Eq. 1's feature; a still limb, whose
+amplitude is near 0, weighs nothing), times the style's ratio ``kappa`` of global to local advance
+over its training rows (:func:`global_phase_ratio`): ``phi_{t+1} = phi_t + kappa max(omega_t, 0)``
+(mod 1; clipped at 0 as the 2018 controller clips its predicted change). The ratio is needed: the
+local phases are fitted over 0.5 s windows (:func:`jaxstyle.local_phases`) and on 100STYLE turn
+faster than the stride, whose cycle the global phase counts (Neutral_FW: 0.018 against 0.012
+cycles per frame; Chicken_FR: 0.020 against 0.019), so ``kappa = 1`` would run a walk's phase
+half as fast again as its data.
 
 Shapes: one character per call of :func:`rollout`; :func:`rollout_batch` takes ``C`` characters
 (states, controls and styles stacked on a leading axis) and shares the network parameters.
@@ -39,7 +61,7 @@ from jaxstyle.control import loop
 from jaxstyle.control.loop import Controls, f32, initial_ground, normaliser_arrays, rotate_xz, trajectory_input
 from jaxstyle.data.lpn_features import NUM_PHASE_FEATURES, LPNLayout
 from jaxstyle.data.normalise import Normaliser
-from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
+from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PAST_SAMPLES
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
 
@@ -47,21 +69,28 @@ from jaxstyle.nn.style_models import StyleModelConfig
 class LPNState(NamedTuple):
     """What the loop carries: ground frames of the last 61 frames ``hist_xz (61, 2)``, ``hist_yaw
     (61,)`` (global; the last is the current frame), the local ``phases (8,)``, the joint features
-    ``joints (12 B,)`` of the current frame in its own ground frame, and the predicted future
-    trajectory ``future (4, 6)`` (x, z, direction x, z at offsets 0 .. 50) in the current frame."""
+    ``joints (12 B,)`` of the current frame in its own ground frame, the predicted future
+    trajectory ``future (4, 6)`` (x, z, direction x, z at offsets 0 .. 50) in the current frame,
+    the ``global_phase ()`` in cycles, ``[0, 1)`` (the PFNN backbone's expert blend), and
+    ``phase_ratio ()``, the style's ratio of global to local phase advance
+    (:func:`global_phase_ratio`; constant over a rollout)."""
 
     hist_xz: jax.Array
     hist_yaw: jax.Array
     phases: jax.Array
     joints: jax.Array
     future: jax.Array
+    global_phase: jax.Array
+    phase_ratio: jax.Array
 
 
 class LPNRollout(NamedTuple):
     """Per generated frame: global ``positions (T, B, 3)`` of the LPN bones (the skeleton's joints
     first, then the hand end sites), ground ``origin (T, 2)`` (x, z), ``yaw (T,)``, local
-    ``phases (T, 8)``, predicted foot ``contacts (T, 2)`` (left, right; the foot IK's input) and the
-    de-normalised network ``outputs (T, O)`` (:func:`jaxstyle.decode_lpn` makes a Motion of them)."""
+    ``phases (T, 8)``, predicted foot ``contacts (T, 2)`` (left, right; the foot IK's input), the
+    de-normalised network ``outputs (T, O)`` as applied (:func:`jaxstyle.decode_lpn` makes a Motion
+    of them; the root motion and the poses damped by standing, see :func:`damp_output`) and the
+    ``global_phase (T,)`` after each frame."""
 
     positions: jax.Array
     origin: jax.Array
@@ -69,11 +98,87 @@ class LPNRollout(NamedTuple):
     phases: jax.Array
     contacts: jax.Array
     outputs: jax.Array
+    global_phase: jax.Array
 
 
-def initial_state(x_row: np.ndarray, phases_row: np.ndarray, num_bones: int) -> LPNState:
-    """The loop's start from one de-normalised LPN input row and its local phases (e.g. a frame of
-    real data): the character stands at the global origin facing +Z with that row's pose."""
+def local_phase_advance(p0_8: jax.Array, p1_8: jax.Array) -> jax.Array:
+    """``omega`` (cycles, in ``(-0.5, 0.5]``): the amplitude-weighted circular mean of the 4 local
+    phases' advance from ``p0`` to ``p1`` (each ``(8,)``: (sin, cos) per bone, Eq. 1's feature
+    scaled by amplitude), the angle of ``sum_b conj(z0_b) z1_b`` with ``z = cos + i sin``. Works on
+    numpy and JAX arrays (leading axes broadcast)."""
+    xp = jnp if isinstance(p0_8, jax.Array) or isinstance(p1_8, jax.Array) else np
+    a = p0_8.reshape(p0_8.shape[:-1] + (NUM_PHASE_FEATURES // 2, 2))
+    b = p1_8.reshape(p1_8.shape[:-1] + (NUM_PHASE_FEATURES // 2, 2))
+    cross = (a[..., 1] * b[..., 0] - a[..., 0] * b[..., 1]).sum(-1)  # Im(conj(z0) z1), z = cos + i sin
+    dot = (a[..., 1] * b[..., 1] + a[..., 0] * b[..., 0]).sum(-1)
+    return xp.arctan2(cross, dot) / (2.0 * np.pi)
+
+
+def predicted_advance(y_O: jax.Array, num_bones: int) -> jax.Array:
+    """``omega`` (cycles): the local phases' advance the network predicts in the de-normalised
+    output ``y (..., O)``, from its previous phases ``P~_{t+1} - dP`` to its next ``P~_{t+1}``
+    (:func:`local_phase_advance`; both read off the same output, so the estimate does not depend
+    on how far the carried phases have drifted from the network's; see the module docstring)."""
+    g = LPNLayout(num_bones).output_groups
+    nxt = y_O[..., g["local_phase"]]
+    return local_phase_advance(nxt - y_O[..., g["local_phase_update"]], nxt)
+
+
+def global_phase_ratio(global_phase_N: np.ndarray, omega_N: np.ndarray, clip_N: np.ndarray,
+                       frame_N: np.ndarray) -> float:
+    """``kappa``: the global phase's advance over the predicted local one, ``sum dphi / sum
+    max(omega, 0)`` over the consecutive frames of some rows (a row and the next one of the same
+    clip, one frame later): ``dphi`` from the rows' ``global_phase``, ``omega`` the local advance
+    predicted at each row (:func:`predicted_advance` of the network's output, or of the real
+    output row). The one-parameter read-out ``dphi = kappa omega`` that makes
+    the derived advance match the data on those rows. 1 when the rows have no consecutive pair or
+    no positive advance."""
+    g, w = np.asarray(global_phase_N, np.float64), np.asarray(omega_N, np.float64)
+    clip, frame = np.asarray(clip_N), np.asarray(frame_N)
+    if not (g.shape == w.shape == clip.shape == frame.shape) or g.ndim != 1:
+        raise ValueError(f"need (N,) global phases, advances, clips and frames; got {g.shape}, {w.shape}, "
+                         f"{clip.shape}, {frame.shape}")
+    order = np.lexsort((frame, clip))
+    g, w, clip, frame = g[order], w[order], clip[order], frame[order]
+    pair = (clip[1:] == clip[:-1]) & (frame[1:] == frame[:-1] + 1)
+    dg = np.mod(g[1:] - g[:-1], 1.0)[pair]
+    dl = np.maximum(w[:-1], 0.0)[pair]
+    if not pair.any() or not dl.sum() > 0 or not np.isfinite(dg.sum() / dl.sum()):
+        return 1.0
+    return float(dg.sum() / dl.sum())
+
+
+def phase_ratio(params: dict, config: StyleModelConfig, style, x_norm: Normaliser, y_norm: Normaliser, dataset,
+                rows: np.ndarray, *, gate_columns=None, max_rows: int = 2048) -> float:
+    """:func:`global_phase_ratio` of the network's own predicted local advance on the LPN
+    ``dataset``'s ``rows`` (one style's training rows; the first ``max_rows`` in clip and frame
+    order), each evaluated at its real input and gate (the row's global phase for the PFNN
+    backbone) with the character's runtime ``style``: the ratio that turns this network's
+    predicted local advance into the style's global-phase rate (see the module docstring)."""
+    rows = np.asarray(rows)
+    rows = rows[np.lexsort((dataset.frame[rows], dataset.clip[rows]))][:max_rows]
+    if len(dataset.global_phase) != len(dataset.inputs) or len(rows) < 2:
+        return 1.0
+    xm, xs = normaliser_arrays(x_norm)
+    ym, ys = normaliser_arrays(y_norm)
+    x_n = (jnp.asarray(dataset.inputs[rows], jnp.float32) - xm) / xs
+    if config.backbone == "pfnn":
+        gate = jnp.asarray(dataset.global_phase[rows], jnp.float32)[:, None]
+    elif config.backbone == "lpn":
+        gate = jnp.asarray(dataset.phases[rows], jnp.float32)
+    else:
+        gate = x_n[:, jnp.asarray(_check(config, gate_columns))]
+    y = style_models.model_apply(params, config, x_n, gate, style) * ys + ym
+    omega = np.asarray(predicted_advance(y, (x_n.shape[1] - 4 * (PAST_SAMPLES + FUTURE_SAMPLES)) // 12))
+    return global_phase_ratio(dataset.global_phase[rows], omega, dataset.clip[rows], dataset.frame[rows])
+
+
+def initial_state(x_row: np.ndarray, phases_row: np.ndarray, num_bones: int, global_phase: float = 0.0,
+                  phase_ratio: float = 1.0) -> LPNState:
+    """The loop's start from one de-normalised LPN input row, its local phases and its global phase
+    (cycles; e.g. a frame of real data: ``dataset.global_phase[row]``), with the style's
+    ``phase_ratio`` (:func:`global_phase_ratio`): the character stands at the global origin facing
+    +Z with that row's pose."""
     layout = LPNLayout(num_bones)
     x = np.asarray(x_row, dtype=np.float64)
     p = np.asarray(phases_row, dtype=np.float64)
@@ -81,11 +186,15 @@ def initial_state(x_row: np.ndarray, phases_row: np.ndarray, num_bones: int) -> 
         raise ValueError(f"x_row must have shape ({layout.input_size},) for {num_bones} bones, got {x.shape}")
     if p.shape != (NUM_PHASE_FEATURES,):
         raise ValueError(f"phases_row must have shape ({NUM_PHASE_FEATURES},), got {p.shape}")
-    if not (np.isfinite(x).all() and np.isfinite(p).all()):
-        raise ValueError("x_row and phases_row must be finite")
+    if not (np.isfinite(x).all() and np.isfinite(p).all() and np.isfinite(global_phase)
+            and np.isfinite(phase_ratio)):
+        raise ValueError("x_row, phases_row, global_phase and phase_ratio must be finite")
+    if phase_ratio < 0:
+        raise ValueError(f"phase_ratio must be non-negative, got {phase_ratio}")
     hist_xz, hist_yaw, future = initial_ground(x, layout.input_groups)
     joints = x[layout.input_groups["joint_position"].start:]
-    return LPNState(hist_xz, hist_yaw, f32(p), f32(joints), future)
+    return LPNState(hist_xz, hist_yaw, f32(p), f32(joints), future, f32(np.mod(float(global_phase), 1.0)),
+                    f32(phase_ratio))
 
 
 def _yaw_rotate(v_Nx3: jax.Array, a) -> jax.Array:
@@ -93,9 +202,40 @@ def _yaw_rotate(v_Nx3: jax.Array, a) -> jax.Array:
     return jnp.stack([x, v_Nx3[:, 1], z], axis=-1)
 
 
-def advance(state: LPNState, y: jax.Array, num_bones: int) -> tuple[LPNState, LPNRollout]:
+def damp_output(y: jax.Array, move, num_bones: int) -> jax.Array:
+    """The de-normalised output ``y`` with its root motion scaled by ``move`` in ``[0, 1]``
+    (:func:`jaxstyle.control.loop.stand_damping`): the next ground frame ``C_{t+1}`` moves ``move``
+    times the predicted step and turns ``move`` times the predicted turn, and everything the row
+    gives in ``C_t`` (trajectory, joint positions; directions rotated only) moves rigidly with it,
+    so the body stays on the damped root, as the 2018 controller's poses (given in ``C_{t+1}``) do.
+    ``move = 1`` returns ``y`` unchanged (to rounding)."""
+    g = LPNLayout(num_bones).output_groups
+    f = FUTURE_SAMPLES
+    tx, tz, tdx, tdz = y[g["trajectory_position"].start:g["trajectory_direction"].stop].reshape(4, f)
+    turn = jnp.arctan2(tdx[0], tdz[0])
+    delta = (move - 1.0) * turn  # applied turn minus predicted turn (rotate_xz by a adds a to atan2(x, z))
+    sx, sz = tx[0], tz[0]
+
+    def point(px, pz):  # C_t coordinates of a point fixed in the predicted C_{t+1}, in the damped one
+        qx, qz = rotate_xz(px - sx, pz - sz, delta)
+        return qx + move * sx, qz + move * sz
+
+    ptx, ptz = point(tx, tz)
+    dtx, dtz = rotate_xz(tdx, tdz, delta)
+    feats = y[g["joint_position"].start:g["joint_up"].stop].reshape(4, num_bones, 3)
+    jx, jz = point(feats[0, :, 0], feats[0, :, 2])
+    pos = jnp.stack([jx, feats[0, :, 1], jz], axis=-1)
+    joints = jnp.stack([pos] + [_yaw_rotate(v, delta) for v in feats[1:]])
+    return jnp.concatenate([ptx, ptz, dtx, dtz, joints.reshape(-1), y[g["joint_up"].stop:]])
+
+
+def advance(state: LPNState, y: jax.Array, num_bones: int, stand=0.0) -> tuple[LPNState, LPNRollout]:
     """Move the character by one de-normalised output ``y (24 + 12 B + 18,)``: the next state and
-    the generated frame (see the module docstring)."""
+    the generated frame (see the module docstring). ``stand`` in ``[0, 1]``: how much the user asks
+    to stand still (:func:`jaxstyle.control.loop.stand_damping`: the root motion is scaled by
+    ``m``, :func:`damp_output`, the local and global phases' advance by ``0.1 + 0.9 m``)."""
+    move, phase_scale = loop.stand_damping(stand)
+    y = damp_output(y, move, num_bones)
     g = LPNLayout(num_bones).output_groups
     origin, yaw = state.hist_xz[-1], state.hist_yaw[-1]
     traj = y[g["trajectory_position"].start:g["trajectory_direction"].stop]
@@ -113,27 +253,37 @@ def advance(state: LPNState, y: jax.Array, num_bones: int) -> tuple[LPNState, LP
     positions = jnp.stack([gpx + origin[0], pos[:, 1], gpz + origin[1]], axis=-1)
     shift = jnp.stack([tx[0], 0.0, tz[0]])
     next_feats = jnp.stack([_yaw_rotate(pos - shift, -turn)] + [_yaw_rotate(v, -turn) for v in feats[1:]])
-    phases = 0.5 * (y[g["local_phase"]] + state.phases + y[g["local_phase_update"]])
+    blended = 0.5 * (y[g["local_phase"]] + state.phases + y[g["local_phase_update"]])
+    phases = state.phases + phase_scale * (blended - state.phases)
+    dphi = phase_scale * state.phase_ratio * jnp.maximum(predicted_advance(y, num_bones), 0.0)
+    global_phase = jnp.mod(state.global_phase + dphi, 1.0)
     contacts = y[g["foot_contact"]]
     new_state = LPNState(jnp.concatenate([state.hist_xz[1:], new_origin[None]]),
                          jnp.concatenate([state.hist_yaw[1:], new_yaw[None]]), phases,
-                         next_feats.reshape(-1), jnp.stack([fx, fz, fdx, fdz]))
-    return new_state, LPNRollout(positions, new_origin, new_yaw, phases, contacts, y)
+                         next_feats.reshape(-1), jnp.stack([fx, fz, fdx, fdz]), global_phase, state.phase_ratio)
+    return new_state, LPNRollout(positions, new_origin, new_yaw, phases, contacts, y, global_phase)
+
+
+def _gate(config: StyleModelConfig, state: LPNState, x_n: jax.Array, gate_columns):
+    """The expert blend's input: the local phases (LPN), the global phase (PFNN, ``(1, 1)`` in
+    cycles) or the end effectors' normalised velocities (MANN)."""
+    if config.backbone == "lpn":
+        return state.phases[None]
+    if config.backbone == "pfnn":
+        return jnp.reshape(state.global_phase, (1, 1))
+    return x_n[:, jnp.asarray(gate_columns)]
 
 
 def _step(params, config, style, x_norm, y_norm, gate_columns, num_bones, blend_bias, state: LPNState, control):
     x = jnp.concatenate([trajectory_input(state.hist_xz, state.hist_yaw, state.future, control, blend_bias),
                          state.joints])
     x_n = ((x - x_norm[0]) / x_norm[1])[None]
-    gate = state.phases[None] if config.backbone == "lpn" else x_n[:, jnp.asarray(gate_columns)]
-    y_n = style_models.model_apply(params, config, x_n, gate, style)[0]
-    return advance(state, y_n * y_norm[1] + y_norm[0], num_bones)
+    y_n = style_models.model_apply(params, config, x_n, _gate(config, state, x_n, gate_columns), style)[0]
+    stand = control[2] if len(control) > 2 else 0.0
+    return advance(state, y_n * y_norm[1] + y_norm[0], num_bones, stand)
 
 
 def _check(config: StyleModelConfig, gate_columns):
-    if config.backbone == "pfnn":
-        raise ValueError("the LPN controller runs the lpn and mann backbones; "
-                         "the PFNN one is jaxstyle.control.controller")
     if config.backbone == "mann" and gate_columns is None:
         raise ValueError("the MANN backbone gates on end-effector velocities: pass gate_columns="
                          "jaxstyle.data.lpn_features.end_effector_columns(skeleton)")

@@ -15,7 +15,10 @@ them, and drive them along paths (Mason, Starke & Komura 2022, section 4.4).
 3. :func:`synthesize`: :func:`jaxstyle.output.lpn_synthesis.synthesize` (one batched rollout; GIF,
    BVH files, the quality table of the 2018 path).
 
-``jaxstyle synthesize --model lpn-film`` and ``jaxstyle demo --model lpn-film`` are this module.
+Every Table 2 model drives characters: the LPN and MANN backbones, and the PFNN backbones (PFNN
+One-hot, PFNN Resad, PFNN FiLM), which the controller evaluates at a carried global phase
+(:mod:`jaxstyle.control.lpn_controller`). ``jaxstyle synthesize --model lpn-film`` (or
+``pfnn-film`` ...) and ``jaxstyle demo --model lpn-film`` are this module.
 """
 
 from __future__ import annotations
@@ -103,10 +106,9 @@ def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None 
                             f"the model was trained on {', '.join(styles)}")
     new = build(meta["new"]) if meta.get("new") else None
     data = pipeline.LPNData(base, new, datasets.load_clip(base.specs[0]))
-    if config.model.backbone == "pfnn":
-        raise PipelineError(f"{directory}: {meta.get('name', 'the model')} has the PFNN backbone; the 2022 "
-                            "controller drives the LPN and MANN backbones (the PFNN-backbone rows need a global "
-                            "phase per row)")
+    if config.model.backbone == "pfnn" and len(base.global_phase) != len(base.inputs):
+        raise PipelineError(f"{directory}: {meta.get('name', 'the model')} has the PFNN backbone and its rows no "
+                            "global phase (a cache older than them): remove the cache folder and load it again")
     try:
         state = train_lpn.load(directory, config, styles)
     except FileNotFoundError:

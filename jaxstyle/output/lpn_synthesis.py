@@ -5,7 +5,10 @@ The runtime of Mason, Starke & Komura 2022 section 4.4 (a style model in the clo
 adapter) for several (style, path) characters at once, in ONE batched, jitted ``lax.scan``
 (:func:`jaxstyle.control.lpn_controller.rollout_batch`, the network's weights broadcast). Each
 character starts from a real pose of its own style chosen to match the requested speed, with that
-frame's local phases. What is written, and the quality table, are exactly those of the 2018 path
+frame's local and global phases (the global phase drives Table 2's PFNN-backbone models, and
+advances at the rate :func:`jaxstyle.control.lpn_controller.phase_ratio` fits for the character's
+style and runtime style on its training rows: :mod:`jaxstyle.control.lpn_controller`). What is
+written, and the quality table, are exactly those of the 2018 path
 (:func:`jaxstyle.output.synthesis.write_results`: the same :mod:`jaxstyle.output.metrics` functions
 on the skeleton's joints, the same GIF, BVH and ``quality.csv``).
 
@@ -36,7 +39,7 @@ from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.output.synthesis import SynthesisResult, start_states, write_results
+from jaxstyle.output.synthesis import SynthesisResult, start_states, style_rows, write_results
 
 
 class LPNCharacter(NamedTuple):
@@ -57,6 +60,15 @@ def own_speed(dataset: datasets.Dataset, rows: np.ndarray, units_per_meter: floa
     next frame's ground position in the current frame (:mod:`jaxstyle.data.lpn_features`)."""
     y = dataset.outputs[rows]
     return float(np.median(np.hypot(y[:, 0], y[:, FUTURE_SAMPLES])) * fps / units_per_meter)
+
+
+def start_state(dataset: datasets.Dataset, row: int, num_bones: int, ratio: float = 1.0) -> lpn_controller.LPNState:
+    """The 2022 controller's start at LPN ``row`` of ``dataset``: its input, local phases and global
+    phase, with the global phase's ``ratio`` to the predicted local advance
+    (:func:`jaxstyle.control.lpn_controller.phase_ratio`). A dataset without global phases (a cache
+    older than them) starts at phase 0, which only the PFNN backbone reads."""
+    phase = float(dataset.global_phase[row]) if len(dataset.global_phase) == len(dataset.inputs) else 0.0
+    return lpn_controller.initial_state(dataset.inputs[row], dataset.phases[row], num_bones, phase, ratio)
 
 
 def blend_character(config: StyleModelConfig, characters: Sequence[LPNCharacter], weights: Sequence[float]
@@ -87,7 +99,8 @@ def synthesize(params: dict, config: StyleModelConfig, normalisers: tuple[Normal
                foot_ik: bool = False, gif: bool = True, mp4: bool = False, every: int = 2,
                contact_sheet: bool = False, reference: bool = True, progress: bool = False) -> SynthesisResult:
     """Drive every character along every path with a 2022 style model and write the results under
-    ``out``: the 2018 :func:`jaxstyle.output.synthesis.synthesize` for the LPN and MANN backbones.
+    ``out``: the 2018 :func:`jaxstyle.output.synthesis.synthesize` for the 2022 models (LPN, MANN and
+    PFNN backbones).
 
     Args:
       params, config: the trained style model (:func:`jaxstyle.nn.style_models.init_model`'s tree).
@@ -112,8 +125,23 @@ def synthesize(params: dict, config: StyleModelConfig, normalisers: tuple[Normal
     if LPNLayout(num_bones).input_size != config.input_size:
         raise ValueError(f"the normalisers have {len(x_norm.mean)} inputs, the model {config.input_size}")
     gate_columns = end_effector_columns(skeleton) if config.backbone == "mann" else None
-    starts, speeds = start_states(characters, upm, fps, lambda ds, row: lpn_controller.initial_state(
-        ds.inputs[row], ds.phases[row], num_bones), speed=speed, speed_of=own_speed)
+    ratios = {}  # the PFNN backbone's global-phase rate, per (dataset, style, runtime style)
+
+    def initial(c, ds, row):
+        if config.backbone != "pfnn":
+            return start_state(ds, row, num_bones)
+        key = (id(ds), c.style, id(c.runtime))
+        if key not in ratios:
+            ratios[key] = lpn_controller.phase_ratio(params, config, c.runtime, x_norm, y_norm, ds,
+                                                     style_rows(ds, c.style), gate_columns=gate_columns)
+        return start_state(ds, row, num_bones, ratios[key])
+
+    starts, speeds = [], []
+    for c in characters:  # start_states, one character at a time: the PFNN backbone's ratio needs its style
+        (st,), (v,) = start_states([c], upm, fps, lambda ds, row, c=c: initial(c, ds, row), speed=speed,
+                                   speed_of=own_speed)
+        starts.append(st)
+        speeds.append(v)
     pairs = [(s, p) for s in range(len(characters)) for p in path_names]
     signals = [paths.named(p, seconds, speeds[s], units_per_meter=upm, fps=fps) for s, p in pairs]
     args = (params, config, _stack([characters[s].runtime for s, _ in pairs]), x_norm, y_norm,

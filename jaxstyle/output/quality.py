@@ -2,7 +2,8 @@
 six protocol paths, measured as the user sees it, beside the same figures of its style's capture.
 
 Per (character, path), from ONE batched closed-loop rollout with the path-following law of
-:mod:`jaxstyle.control.loop` (:func:`run`, :func:`measure`):
+:mod:`jaxstyle.control.loop` (:func:`run` for the 2018 PFNN with style adapters, :func:`run_lpn` for
+the 2022 style models; both measured by the one function :func:`measure`):
 
 * foot skating (:func:`jaxstyle.output.metrics.foot_skating`) of the network's own joints, of the
   exported skeleton (the BVH's forward kinematics: bone lengths exact, :mod:`jaxstyle.output.export`)
@@ -14,8 +15,10 @@ Per (character, path), from ONE batched closed-loop rollout with the path-follow
   after each stop command (:func:`jaxstyle.output.metrics.stop_times`), jitter and ankle jerk.
 
 :func:`capture_row` gives the same figures for a clip of the style's capture (no path: those are
-blank). :func:`targets` checks the issue's targets, :func:`table` and :func:`write_csv` report,
-:func:`plot` draws the bars (generated vs capture). :func:`diagnose` measures where sliding and
+blank). Every row names its ``model`` (:data:`MODEL_2018` or the 2022 model's Table 2 name).
+:func:`targets` checks the issue's targets, :func:`table` and :func:`write_csv` report,
+:func:`target_marks` lists chosen targets with pass/fail marks (``jaxstyle demo``), :func:`plot`
+draws the bars (generated vs capture). :func:`diagnose` measures where sliding and
 drift come from (teacher-forced vs closed loop, root vs planted-foot velocity, phase advance vs
 cadence, trajectory blending, normalisation) for ``docs/quality.md``.
 """
@@ -27,79 +30,169 @@ import dataclasses
 import math
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control import controller, loop, paths
+from jaxstyle.control import controller, loop, lpn_controller, paths
 from jaxstyle.data import datasets
+from jaxstyle.data.lpn_features import end_effector_columns
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.nn import pfnn
-from jaxstyle.output import export, metrics
+from jaxstyle.output import export, lpn_synthesis, metrics
 from jaxstyle.output.synthesis import own_speed, start_states, style_rows
 
 PROTOCOL_PATHS = ("straight", "circle", "zigzag", "stop_and_go", "speed_ramp", "waypoints")
 FOLLOW_PATHS = ("straight", "circle", "zigzag")  # the paths of the 0.3 m final-error target
+TARGET_PATHS = FOLLOW_PATHS + ("stop_and_go",)  # the paths of the path and stop targets (``jaxstyle demo``)
+PATH_TARGETS = ("final path error <= 0.3 m", "stop within 0.5 s")  # their names in :func:`targets`
 SECONDS = 8.0
+MODEL_2018 = "2018 PFNN"
+"""The ``model`` of the 2018 characters' rows (the 2022 models' rows carry their Table 2 names)."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Subject:
-    """One character: ``title``, ``kind`` (``"base"`` or ``"few-shot"``), its PFNN ``adapter`` and
-    the ``dataset`` + ``style`` whose rows give its start pose, its own speed and its capture."""
+    """One character: ``title``, ``kind`` (``"base"`` or ``"few-shot"``), its ``adapter`` (the 2018
+    PFNN's residual adapter; for a 2022 model the runtime style that
+    :func:`jaxstyle.nn.style_models.model_apply` takes: a FiLM vector, one-hot row or adapter, as in
+    :class:`jaxstyle.output.lpn_synthesis.LPNCharacter`), the ``dataset`` + ``style`` whose rows give
+    its start pose, its own speed and its capture, and the ``model`` it belongs to."""
 
     title: str
     kind: str
-    adapter: dict
+    adapter: Any
     dataset: datasets.Dataset
     style: str
+    model: str = MODEL_2018
+
+
+def subject(character, kind: str, model: str = MODEL_2018) -> Subject:
+    """The :class:`Subject` of a synthesis character: a 2018
+    :class:`jaxstyle.output.synthesis.Character` (its ``adapter``) or a 2022
+    :class:`jaxstyle.output.lpn_synthesis.LPNCharacter` (its ``runtime`` style)."""
+    style = character.runtime if isinstance(character, lpn_synthesis.LPNCharacter) else character.adapter
+    return Subject(character.title, kind, style, character.dataset, character.style, model)
 
 
 def _stack(items):
-    return jax.tree.map(lambda *v: jnp.stack(v), *items)
+    return jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *items)
 
 
-def run(params: dict, normalisers: tuple[Normaliser, Normaliser], subjects: Sequence[Subject], skeleton: Motion, *,
-        path_names: Sequence[str] = PROTOCOL_PATHS, seconds: float = SECONDS,
-        follow_seconds: float | None = loop.FOLLOW_SECONDS, blend_frames: int = 5, blend_bias: float = 1.5
-        ) -> tuple[list[dict], dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]]:
-    """Drive every subject along every path at its style's own median speed (one batched rollout)
-    and :func:`measure` each; then one :func:`capture_row` per subject. Returns the rows and, per
-    ``(title, path)``, the network's joint positions and the path's ideal positions (previews)."""
-    x_norm, y_norm = normalisers
+Drawn = dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]
+
+
+def _drive(subjects: Sequence[Subject], skeleton: Motion, initial, rollout_batch, *, speed_of,
+           path_names: Sequence[str], seconds: float, follow_seconds: float | None, blend_frames: int
+           ) -> tuple[list[dict], Drawn]:
+    """What :func:`run` and :func:`run_lpn` share: the start states
+    (:func:`jaxstyle.output.synthesis.start_states`, the style's own median speed by ``speed_of``,
+    ``initial(subject index, dataset, row)``), the path signals and controls with the
+    path-following law, ONE batched rollout (``rollout_batch(which, states, controls)``, ``which``
+    the subject of each rollout), then :func:`measure_rollouts`."""
     upm, fps = estimate_units_per_meter(skeleton), skeleton.fps
-    starts, speeds = start_states(subjects, upm, fps, lambda ds, row: controller.initial_state(
-        ds.inputs[row], float(ds.phases[row, 0]), skeleton.num_joints))
+    starts, speeds = [], []
+    for i, s in enumerate(subjects):
+        (state,), (speed,) = start_states([s], upm, fps, lambda ds, row, i=i: initial(i, ds, row), speed_of=speed_of)
+        starts.append(state)
+        speeds.append(speed)
     pairs = [(i, p) for i in range(len(subjects)) for p in path_names]
     signals = [paths.named(p, seconds, speeds[i], units_per_meter=upm, fps=fps) for i, p in pairs]
-    adapters = pfnn.stack_adapters([subjects[i].adapter for i, _ in pairs])
-    out = controller.rollout_batch(params, adapters, x_norm, y_norm, _stack([starts[i] for i, _ in pairs]),
-                                   _stack([loop.signal_controls(sig, follow_seconds=follow_seconds)
-                                           for sig in signals]), blend_bias=blend_bias)
-    out = jax.tree.map(np.asarray, out)
+    which = [i for i, _ in pairs]
+    out = rollout_batch(which, _stack([starts[i] for i in which]),
+                        _stack([loop.signal_controls(sig, follow_seconds=follow_seconds) for sig in signals]))
+    return measure_rollouts(subjects, pairs, signals, out, skeleton, speeds, blend_frames=blend_frames)
+
+
+def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str]], signals: Sequence[paths.PathSignal],
+                     rollouts, skeleton: Motion, speeds: Sequence[float], *, blend_frames: int = 5
+                     ) -> tuple[list[dict], Drawn]:
+    """:func:`measure` each rollout of a batch of either controller (leading axis ``len(pairs)``,
+    ``pairs[k] = (subject index, path name)`` along ``signals[k]``), then one :func:`capture_row`
+    per subject. Returns the rows and, per ``(title, path)``, the network's joint positions (the
+    skeleton's joints) and the path's ideal positions (previews)."""
+    upm = estimate_units_per_meter(skeleton)
+    out = jax.tree.map(np.asarray, rollouts)
     results, drawn = [], {}
     for k, (i, p) in enumerate(pairs):
         one = jax.tree.map(lambda v, k=k: v[k], out)
-        drawn[(subjects[i].title, p)] = (one.positions, signals[k].positions)
+        s = subjects[i]
+        drawn[(s.title, p)] = (one.positions[:, :skeleton.num_joints], signals[k].positions)
         row = measure(one, skeleton, signals[k], units_per_meter=upm, blend_frames=blend_frames)
-        results.append({"style": subjects[i].title, "kind": subjects[i].kind, "path": p, "speed_m_s": speeds[i],
-                        **row})
+        results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row})
     for s in subjects:
         results.append(capture_row(s))
     return results, drawn
 
 
-def measure(rollout: controller.Rollout, skeleton: Motion, signal: paths.PathSignal, *, units_per_meter: float,
-            blend_frames: int = 5) -> dict:
-    """The figures of one character's rollout along ``signal`` (see the module docstring)."""
+def run(params: dict, normalisers: tuple[Normaliser, Normaliser], subjects: Sequence[Subject], skeleton: Motion, *,
+        path_names: Sequence[str] = PROTOCOL_PATHS, seconds: float = SECONDS,
+        follow_seconds: float | None = loop.FOLLOW_SECONDS, blend_frames: int = 5, blend_bias: float = 1.5
+        ) -> tuple[list[dict], Drawn]:
+    """Drive every subject (2018 PFNN adapters) along every path at its style's own median speed
+    (one batched rollout, :func:`jaxstyle.control.controller.rollout_batch`) and :func:`measure`
+    each; then one :func:`capture_row` per subject. Returns the rows and, per ``(title, path)``, the
+    network's joint positions and the path's ideal positions (previews)."""
+    x_norm, y_norm = normalisers
+
+    def initial(_, ds, row):
+        return controller.initial_state(ds.inputs[row], float(ds.phases[row, 0]), skeleton.num_joints)
+
+    def rollout_batch(which, states, controls):
+        adapters = pfnn.stack_adapters([subjects[i].adapter for i in which])
+        return controller.rollout_batch(params, adapters, x_norm, y_norm, states, controls, blend_bias=blend_bias)
+
+    return _drive(subjects, skeleton, initial, rollout_batch, speed_of=own_speed, path_names=path_names,
+                  seconds=seconds, follow_seconds=follow_seconds, blend_frames=blend_frames)
+
+
+def run_lpn(params: dict, config, normalisers: tuple[Normaliser, Normaliser], subjects: Sequence[Subject],
+            skeleton: Motion, *, path_names: Sequence[str] = PROTOCOL_PATHS, seconds: float = SECONDS,
+            follow_seconds: float | None = loop.FOLLOW_SECONDS, blend_frames: int = 5, blend_bias: float = 1.5
+            ) -> tuple[list[dict], Drawn]:
+    """:func:`run` for a trained 2022 style model (Mason, Starke & Komura 2022, section 4.4): the
+    subjects' ``adapter`` is their runtime style, driven by
+    :func:`jaxstyle.control.lpn_controller.rollout_batch` from a real pose of the style with its
+    local phases, at the style's own speed (:func:`jaxstyle.output.lpn_synthesis.own_speed`), as
+    :func:`jaxstyle.output.lpn_synthesis.synthesize` starts its characters; the same paths, the
+    same path-following law and the same :func:`measure` as the 2018 characters. ``config``: the
+    model's :class:`jaxstyle.nn.style_models.StyleModelConfig`; ``normalisers``: its training
+    data's. Every backbone: the MANN's gating columns come from ``skeleton``; the PFNN backbone's
+    global phase starts at the row's and advances at the rate
+    :func:`jaxstyle.control.lpn_controller.phase_ratio` fits for the subject's style and runtime
+    style, as :func:`jaxstyle.output.lpn_synthesis.synthesize` starts it."""
+    x_norm, y_norm = normalisers
+    num_bones = subjects[0].dataset.inputs.shape[1] // 12 - 4  # inputs 48 + 12 B (jaxstyle.data.lpn_features)
+    gate_columns = end_effector_columns(skeleton) if config.backbone == "mann" else None
+
+    def initial(i, ds, row):
+        s = subjects[i]
+        ratio = 1.0 if config.backbone != "pfnn" else lpn_controller.phase_ratio(
+            params, config, s.adapter, x_norm, y_norm, ds, style_rows(ds, s.style), gate_columns=gate_columns)
+        return lpn_synthesis.start_state(ds, row, num_bones, ratio)
+
+    def rollout_batch(which, states, controls):
+        return lpn_controller.rollout_batch(params, config, _stack([subjects[i].adapter for i in which]), x_norm,
+                                            y_norm, states, controls, gate_columns=gate_columns, blend_bias=blend_bias)
+
+    return _drive(subjects, skeleton, initial, rollout_batch, speed_of=lpn_synthesis.own_speed,
+                  path_names=path_names, seconds=seconds, follow_seconds=follow_seconds, blend_frames=blend_frames)
+
+
+def measure(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: Motion, signal: paths.PathSignal, *,
+            units_per_meter: float, blend_frames: int = 5) -> dict:
+    """The figures of one character's rollout along ``signal`` (see the module docstring), of either
+    controller: the network's joints are the skeleton's (an LPN rollout's extra hand points are left
+    out), the exported skeleton is the BVH's (:func:`jaxstyle.output.export.rollout_motion` decodes
+    both models' outputs), the IK uses the network's own contacts when it predicts them."""
     upm, fps = float(units_per_meter), float(signal.fps)
-    net = np.asarray(rollout.positions, dtype=np.float64)
+    net = np.asarray(rollout.positions, dtype=np.float64)[:, :skeleton.num_joints]
     nan = float("nan")
     row = {"foot_skating_m_s": nan, "foot_skating_bvh_m_s": nan, "foot_skating_ik_m_s": nan}
     if not np.isfinite(np.asarray(rollout.outputs)).all():
@@ -124,7 +217,7 @@ def measure(rollout: controller.Rollout, skeleton: Motion, signal: paths.PathSig
         "path_error_mean_m": float(np.mean(err)), "path_error_final_m": float(err[-1]),
         "path_error_final_pct": 100.0 * float(err[-1]) / length if length > 0 else nan,
         "heading_error_deg": metrics.heading_error_deg(rollout.yaw, signal.yaw),
-        "stop_time_s": float(np.max(stops)) if len(stops) else nan,
+        "stop_time_s": float(np.max(stops)) if len(stops) else nan, "stop_commands": int(len(stops)),
         "jitter_m_s3": q.jitter_m_s3,
         "ankle_jerk_m_s3": metrics.foot_jerk(net, skeleton, fps, units_per_meter=upm),
         "ankle_jerk_ik_m_s3": metrics.foot_jerk(after, skeleton, fps, units_per_meter=upm),
@@ -139,14 +232,20 @@ def capture_clip(subject: Subject, fps: float = 60.0) -> Motion:
 
 def capture_row(subject: Subject) -> dict:
     """The same figures for the style's capture (forward kinematics of the BVH; no path)."""
-    clip = capture_clip(subject)
+    return {"model": subject.model, "style": subject.title, "kind": subject.kind, "path": "capture",
+            **capture_figures(capture_clip(subject))}
+
+
+def capture_figures(clip: Motion) -> dict:
+    """:func:`measure`'s figures of real motion (its skeleton is its BVH: the network, BVH and IK
+    columns are the same; no path, so the path figures are NaN)."""
     upm, fps = estimate_units_per_meter(clip), clip.fps
     pos = global_positions(clip)
     q = metrics.motion_quality(pos, clip, fps, units_per_meter=upm)
     skate = q.foot_skating_m_s
     jerk = metrics.foot_jerk(pos, clip, fps, units_per_meter=upm)
     nan = float("nan")
-    return {"style": subject.title, "kind": subject.kind, "path": "capture", "speed_m_s": nan, "finite": True,
+    return {"speed_m_s": nan, "finite": True,
             "foot_skating_m_s": skate, "foot_skating_bvh_m_s": skate, "foot_skating_ik_m_s": skate,
             "contact_fraction": q.contact_fraction, "bone_error_mean": q.bone_error_mean,
             "bone_error_max": q.bone_error_max, "bone_error_bvh_max": q.bone_error_max, "joint_difference_max_m": 0.0,
@@ -155,13 +254,18 @@ def capture_row(subject: Subject) -> dict:
             "ankle_jerk_ik_m_s3": jerk}
 
 
-def _capture_of(rows: list[dict]) -> dict[str, dict]:
-    return {r["style"]: r for r in rows if r["path"] == "capture"}
+def _model(r: dict) -> str:
+    return r.get("model") or MODEL_2018
+
+
+def _capture_of(rows: list[dict]) -> dict[tuple[str, str], dict]:
+    """The capture row of each ``(model, style)``."""
+    return {(_model(r), r["style"]): r for r in rows if r["path"] == "capture"}
 
 
 def targets(rows: list[dict]) -> list[dict]:
-    """One entry per (target, character, path) of the issue: ``{"target", "style", "path", "value",
-    "limit", "met"}``; skating targets against the style's capture (1.5x for base styles, 2x for
+    """One entry per (target, character, path) of the issue: ``{"target", "model", "style", "path",
+    "value", "limit", "met"}``; skating targets against the style's capture (1.5x for base styles, 2x for
     few-shot; after IK the capture's + 0.03 m/s, ankle jerk at most 1.5x the capture's), final path
     error <= 0.3 m on straight, circle and zigzag, stop within 0.5 s, BVH bone error 0."""
     cap = _capture_of(rows)
@@ -169,13 +273,13 @@ def targets(rows: list[dict]) -> list[dict]:
 
     def add(name, r, value, limit):
         met = bool(np.isfinite(value) and value <= limit)
-        out.append({"target": name, "style": r["style"], "path": r["path"], "value": value, "limit": limit,
-                    "met": met})
+        out.append({"target": name, "model": _model(r), "style": r["style"], "path": r["path"], "value": value,
+                    "limit": limit, "met": met})
 
     for r in rows:
         if r["path"] == "capture":
             continue
-        c = cap.get(r["style"])
+        c = cap.get((_model(r), r["style"]))
         if c is not None:
             factor = 1.5 if r["kind"] == "base" else 2.0
             add(f"raw skating <= {factor:g}x capture", r, r["foot_skating_m_s"], factor * c["foot_skating_m_s"])
@@ -183,22 +287,35 @@ def targets(rows: list[dict]) -> list[dict]:
             add("IK ankle jerk <= 1.5x capture", r, r["ankle_jerk_ik_m_s3"], 1.5 * c["ankle_jerk_m_s3"])
         if r["path"] in FOLLOW_PATHS:
             add("final path error <= 0.3 m", r, r["path_error_final_m"], 0.3)
-        if r["path"] == "stop_and_go":
+        if r["path"] == "stop_and_go" and r.get("stop_commands", 1) != 0:  # 0: a path too short to stop on
             add("stop within 0.5 s", r, r["stop_time_s"], 0.5)
         add("BVH bone error 0", r, r.get("bone_error_bvh_max", float("nan")), 1e-6)
     return out
 
 
 def target_summary(checks: list[dict]) -> list[str]:
-    """Markdown lines: per target, how many (character, path) pairs meet it, and the worst value."""
-    lines = ["| target | met | worst value (style, path) |", "|---|---|---|"]
-    for name in dict.fromkeys(c["target"] for c in checks):
-        mine = [c for c in checks if c["target"] == name]
+    """Markdown lines: per model and target, how many (character, path) pairs meet it, and the worst value."""
+    lines = ["| model | target | met | worst value (style, path) |", "|---|---|---|---|"]
+    for model, name in dict.fromkeys((c.get("model", MODEL_2018), c["target"]) for c in checks):
+        mine = [c for c in checks if c["target"] == name and c.get("model", MODEL_2018) == model]
         met = sum(c["met"] for c in mine)
         worst = max(mine, key=lambda c: (c["value"] - c["limit"]) if np.isfinite(c["value"]) else math.inf)
-        lines.append(f"| {name} | {met} / {len(mine)} | {_f(worst['value'], 3)} vs {_f(worst['limit'], 3)} "
-                     f"({worst['style']}, {worst['path']}) |")
+        lines.append(f"| {model} | {name} | {met} / {len(mine)} | {_f(worst['value'], 3)} vs "
+                     f"{_f(worst['limit'], 3)} ({worst['style']}, {worst['path']}) |")
     return lines
+
+
+def target_marks(checks: list[dict], names: Sequence[str] = PATH_TARGETS) -> list[str]:
+    """Markdown lines: every check of the targets ``names`` (default the path and stop targets)
+    with its value, its limit and a pass/FAIL mark, then one line counting them."""
+    mine = [c for c in checks if c["target"] in names]
+    lines = ["| model | style | path | target | value | limit | |", "|---|---|---|---|---|---|---|"]
+    lines += [f"| {c.get('model', MODEL_2018)} | {c['style']} | {c['path']} | {c['target']} | {_f(c['value'], 2)} | "
+              f"{_f(c['limit'], 2)} | {'pass' if c['met'] else 'FAIL'} |" for c in mine]
+    met = sum(c["met"] for c in mine)
+    blank = sum(not np.isfinite(c["value"]) for c in mine)
+    note = f" ({blank} n/a: never stopped before the path moved on or ended, or a diverged rollout)" if blank else ""
+    return lines + ["", f"{', '.join(names)}: {met} of {len(mine)} met{note}"]
 
 
 def _f(v, digits: int = 2) -> str:
@@ -206,14 +323,17 @@ def _f(v, digits: int = 2) -> str:
 
 
 def table(rows: list[dict]) -> list[str]:
-    """The benchmark's markdown table: per style its capture row, then one row per path."""
-    head = ("| style | path | skating m/s net / BVH / IK | feet on floor | bone error net max / BVH | "
+    """The benchmark's markdown table: per model (in order of appearance) and style, its capture
+    row, then one row per path."""
+    head = ("| model | style | path | skating m/s net / BVH / IK | feet on floor | bone error net max / BVH | "
             "joint diff m | path error mean / final m (final %) | heading deg | stop s | jitter m/s^3 | "
             "ankle jerk net / IK m/s^3 |")
-    lines = [head, "|" + "---|" * 11]
-    for r in sorted(rows, key=lambda r: (r["style"], r["path"] != "capture")):
+    lines = [head, "|" + "---|" * 12]
+    order = {m: i for i, m in enumerate(dict.fromkeys(_model(r) for r in rows))}
+    for r in sorted(rows, key=lambda r: (order[_model(r)], r["style"], r["path"] != "capture")):
         lines.append(
-            f"| {r['style']} | {r['path']} | {_f(r['foot_skating_m_s'])} / {_f(r['foot_skating_bvh_m_s'])} / "
+            f"| {_model(r)} | {r['style']} | {r['path']} | {_f(r['foot_skating_m_s'])} / "
+            f"{_f(r['foot_skating_bvh_m_s'])} / "
             f"{_f(r['foot_skating_ik_m_s'])} | {_f(r.get('contact_fraction'))} | "
             f"{100 * r.get('bone_error_max', math.nan):.1f}% / {100 * r.get('bone_error_bvh_max', math.nan):.1g}%"
             f" | {_f(r.get('joint_difference_max_m'))} | {_f(r.get('path_error_mean_m'))} / "
@@ -240,7 +360,7 @@ PLOTTED = (("foot_skating_m_s", "skating, network joints (m/s)"), ("foot_skating
 
 
 def plot(rows: list[dict], path: str | os.PathLike) -> Path:
-    """Bars per metric: each style's generated motion (mean over the paths) beside its capture."""
+    """Bars per metric: each (model, style)'s generated motion (mean over the paths) beside its capture."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -248,13 +368,19 @@ def plot(rows: list[dict], path: str | os.PathLike) -> Path:
 
     cap = _capture_of(rows)
     styles = list(cap)
-    fig, axes = plt.subplots(1, len(PLOTTED), figsize=(3.2 * len(PLOTTED), 3.4))
+    several = len({m for m, _ in styles}) > 1
+    if several:  # one metric per row, wide enough for every (model, style)
+        fig, axes = plt.subplots(len(PLOTTED), 1, figsize=(max(6.0, 0.32 * len(styles)), 2.6 * len(PLOTTED)))
+    else:
+        fig, axes = plt.subplots(1, len(PLOTTED), figsize=(3.2 * len(PLOTTED), 3.4))
     x = np.arange(len(styles))
     for ax, (key, label) in zip(axes, PLOTTED, strict=True):
-        gen = [np.nanmean([r[key] for r in rows if r["style"] == s and r["path"] != "capture"]) for s in styles]
+        gen = [np.nanmean([r[key] for r in rows if (_model(r), r["style"]) == s and r["path"] != "capture"])
+               for s in styles]
         ax.bar(x - 0.2, gen, 0.4, label="generated")
         ax.bar(x + 0.2, [cap[s][key] for s in styles], 0.4, label="capture")
-        ax.set_xticks(x, [s.split(" ")[0] for s in styles], rotation=30, ha="right", fontsize=8)
+        ax.set_xticks(x, [s.split(" ")[0] + (f" ({m})" if several else "") for m, s in styles], rotation=30,
+                      ha="right", fontsize=8)
         ax.set_title(label, fontsize=9)
     axes[0].legend(fontsize=8)
     fig.tight_layout()

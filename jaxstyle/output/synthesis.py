@@ -6,7 +6,9 @@ jitted ``lax.scan`` (:func:`jaxstyle.control.controller.rollout_batch`, base wei
 starting from a real pose of its own style chosen to match the requested speed. Then, per path, a
 GIF with the styles side by side (:mod:`jaxstyle.output.preview`), per (style, path) a BVH (feet pinned
 with the 2022 paper's section 4.4 IK when ``foot_ik``) and an ``.npz`` (:mod:`jaxstyle.output.export`),
-and a table of :mod:`jaxstyle.output.metrics` figures beside those of real motion of each style.
+and a table of :mod:`jaxstyle.output.metrics` figures beside those of real motion of each style: of the
+network's own joints, and of the exported skeleton (the BVH's, before and after contact IK) by the
+quality benchmark's :func:`jaxstyle.output.quality.measure`, so what a user sees in Blender is measured.
 
 Used by ``jaxstyle synthesize`` / ``jaxstyle demo`` (:mod:`jaxstyle.cli`).
 """
@@ -28,7 +30,6 @@ from jaxstyle.data import datasets
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
-from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.nn import pfnn
 from jaxstyle.output import export, metrics, preview
 
@@ -158,7 +159,14 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
     :class:`jaxstyle.output.lpn_synthesis.LPNCharacter`); ``pairs``: ``(character index, path name)``
     of each rollout; ``signals``: the :class:`jaxstyle.control.paths.PathSignal` of each pair. The
     metrics read the skeleton's joints (the LPN's extra hand points are left out), with the same
-    functions for both models. Returns the quality rows and the files written."""
+    functions for both models: :func:`jaxstyle.output.metrics.motion_quality` of the network's joints
+    (the row's first columns, path error of the root joint's ground point) and the benchmark's
+    figures of the exported skeleton (:func:`jaxstyle.output.quality.measure`, :data:`EXPORTED_FIGURES`:
+    skating of the BVH before and after contact IK, its bone error, the largest network-to-BVH
+    joint distance, heading error, time to stop, ankle jerk). Returns the quality rows and the
+    files written."""
+    from jaxstyle.output import quality  # the benchmark builds on this module (start states)
+
     out = Path(out)
     upm = estimate_units_per_meter(skeleton)
     fps = skeleton.fps
@@ -185,14 +193,14 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
         q = metrics.motion_quality(np.asarray(one.positions)[:, :joints], skeleton, fps, units_per_meter=upm,
                                    path_Tx2=signals[k].positions)
         row = {"style": c.title, "path": p, **q.as_row()}
+        measured = quality.measure(one, skeleton, signals[k], units_per_meter=upm)
+        row.update({key: measured.get(key, float("nan")) for key in EXPORTED_FIGURES})
         if np.isfinite(np.asarray(one.outputs)).all():
             motion = export.rollout_motion(one, skeleton)
             if foot_ik:
-                fixed = export.fix_feet(motion, one)
-                row["foot_skating_before_ik_m_s"], row["foot_skating_after_ik_m_s"] = (
-                    metrics.foot_skating(global_positions(m), skeleton, fps, units_per_meter=upm)
-                    for m in (motion, fixed))
-                motion = fixed
+                motion = export.fix_feet(motion, one)
+                row["foot_skating_before_ik_m_s"] = row["foot_skating_bvh_m_s"]
+                row["foot_skating_after_ik_m_s"] = row["foot_skating_ik_m_s"]
             files += export.save_rollout(out / "bvh" / f"{c.label}_{p}", one, skeleton, motion=motion).values()
         rows.append(row)
     if reference:
@@ -203,10 +211,19 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
                 continue
             seen.add(key)
             spec = c.dataset.specs[int(c.dataset.clip[style_rows(c.dataset, c.style)[0]])]
-            q = metrics.reference_quality(datasets.load_clip(spec, fps=fps), units_per_meter=upm)
-            rows.append({"style": c.title, "path": f"real ({Path(spec.path).name})", **q.as_row()})
+            clip = datasets.load_clip(spec, fps=fps)
+            q = metrics.reference_quality(clip, units_per_meter=upm)
+            real = quality.capture_figures(clip)
+            rows.append({"style": c.title, "path": f"real ({Path(spec.path).name})", **q.as_row(),
+                         **{key: real[key] for key in EXPORTED_FIGURES}})
     files.append(write_quality(rows, out / "quality.csv"))
     return rows, files
+
+
+EXPORTED_FIGURES = ("foot_skating_bvh_m_s", "foot_skating_ik_m_s", "bone_error_bvh_max", "joint_difference_max_m",
+                    "heading_error_deg", "stop_time_s", "ankle_jerk_m_s3", "ankle_jerk_ik_m_s3")
+"""The columns :func:`write_results` adds from :func:`jaxstyle.output.quality.measure`; the real
+clips' rows have the skating and bone figures of their own skeleton there."""
 
 
 def write_quality(rows: list[dict], path: Path) -> Path:
@@ -219,21 +236,26 @@ def write_quality(rows: list[dict], path: Path) -> Path:
     return path
 
 
+def _f(v, digits: int = 2) -> str:
+    return "n/a" if v is None or v == "" or not np.isfinite(float(v)) else f"{float(v):.{digits}f}"
+
+
 def quality_table(rows: list[dict]) -> list[str]:
-    """Markdown lines of the main quality figures, and of the foot IK's effect when it was applied."""
-    lines = ["| style | path | skating m/s | feet on floor | bone error mean / max | path error mean / final m "
-             "| jitter m/s^3 |", "|---|---|---|---|---|---|---|"]
+    """Markdown lines of the main quality figures: skating of the network's own joints, of the
+    exported BVH's skeleton and of that skeleton after contact IK (the BVH files hold it with
+    ``foot_ik``), feet on floor, bone error of the network's joints and of the BVH, the largest
+    network-to-BVH joint distance, path error, time to stop, jitter (:func:`write_results`)."""
+    lines = ["| style | path | skating m/s network / BVH / BVH + IK | feet on floor | bone error network mean / max "
+             "/ BVH max | joint diff m | path error mean / final m | stop s | jitter m/s^3 |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['style']} | {r['path']} | {r['foot_skating_m_s']:.2f} | {r['contact_fraction']:.2f} "
-                     f"| {100 * r['bone_error_mean']:.1f}% / {100 * r['bone_error_max']:.0f}% "
-                     f"| {r['path_error_mean_m']:.2f} / {r['path_error_final_m']:.2f} | {r['jitter_m_s3']:.0f} |")
-    ik = [r for r in rows if r.get("foot_skating_before_ik_m_s") not in (None, "")]
-    if ik:
-        lines += ["", "foot-contact IK on the exported BVH (skating of the decoded motion, m/s; the table above "
-                  "measures the network's own joint positions):", "", "| style | path | before IK | after IK |",
-                  "|---|---|---|---|"]
-        lines += [f"| {r['style']} | {r['path']} | {r['foot_skating_before_ik_m_s']:.2f} "
-                  f"| {r['foot_skating_after_ik_m_s']:.2f} |" for r in ik]
+        g = r.get
+        lines.append(f"| {r['style']} | {r['path']} | {_f(g('foot_skating_m_s'))} / {_f(g('foot_skating_bvh_m_s'))} / "
+                     f"{_f(g('foot_skating_ik_m_s'))} | {_f(g('contact_fraction'))} "
+                     f"| {_f(100 * r['bone_error_mean'], 1)}% / {_f(100 * r['bone_error_max'], 0)}% / "
+                     f"{_f(100 * float(g('bone_error_bvh_max', 'nan')), 0)}% | {_f(g('joint_difference_max_m'))} "
+                     f"| {_f(g('path_error_mean_m'))} / {_f(g('path_error_final_m'))} | {_f(g('stop_time_s'))} "
+                     f"| {_f(g('jitter_m_s3'), 0)} |")
     return lines
 
 
