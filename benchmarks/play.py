@@ -2,7 +2,7 @@
 jitted call, :meth:`jaxstyle.play.session.Session.step`) and the viser scene update (bones,
 joints, future trajectory, targets, camera), for 1 and 8 characters.
 
-    python benchmarks/play.py [--run RUN] [--frames 600] [--characters 1 8]
+    python benchmarks/play.py [--run RUN] [--model pfnn|lpn-film] [--frames 600] [--characters 1 8]
     python benchmarks/play.py --run runs/demo --screenshot docs/figures/play.png
 
 ``--screenshot``: the page in headless Chromium (/usr/bin/chromium through playwright, as the
@@ -10,7 +10,9 @@ browser tests), two characters walking to waypoints in two styles (the README's 
 
 With ``--run`` the run folder's model is timed (e.g. ``runs/demo``); without it, a PFNN of the
 demo's size (hidden 256, CP adapters of rank 16; random weights: timing does not depend on their
-values) on a procedural skeleton (25 joints). The characters walk (a waypoint ahead, the first
+values) on a procedural skeleton (25 joints). ``--model lpn-film``: the 2022 model instead, the run's
+(``RUN/lpn``) or a random LPN-FiLM of ``--hidden`` units (default 512, the paper's; 8 experts, the
+FiLM vector a per-character argument) on procedural styles. The characters walk (a waypoint ahead, the first
 one a blend of two styles). The viser server runs in this process with no page connected: the
 scene messages are built and queued as for a page, not sent over a network. Targets of issue 21:
 <= 4 ms per frame for one character, <= 8 ms for eight, on the 2-core CPU.
@@ -33,7 +35,9 @@ from jaxstyle.data import procedural
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline
-from jaxstyle.nn import pfnn
+from jaxstyle.mason2022 import pipeline as pipeline2022
+from jaxstyle.mason2022 import synthesis as synthesis2022
+from jaxstyle.nn import pfnn, style_models
 from jaxstyle.output import synthesis
 from jaxstyle.play import session
 from jaxstyle.play.server import PlayServer
@@ -57,6 +61,20 @@ def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> session.
     upm = estimate_units_per_meter(skeleton)
     speed = synthesis.own_speed(dataset, synthesis.style_rows(dataset, "Neutral"), upm)
     return session.PlayModel(base, styles, upm, speed, folder)
+
+
+def random_lpn_model(folder: Path, hidden: int = 512) -> session.LPNPlayModel:
+    """A random LPN-FiLM (``hidden`` units, the demo's FiLM generator preset) on two procedural styles."""
+    from jaxstyle.data import folders
+
+    root = procedural.write_dataset(folder / "data", ["Neutral", "Crouched"], ["FW"], seconds=8.0, progress=False)
+    styles, _ = folders.split_styles(root, [])
+    data = pipeline2022.build_data(root, styles)
+    config = pipeline2022.model_config(data.base, hidden=hidden, generator_hidden=512, filters=32)
+    params = style_models.init_model(jax.random.PRNGKey(0), config)
+    model = pipeline2022.Model(pipeline2022.MODEL, config, params,
+                               pipeline2022.train_lpn.style_data(data.base, data.skeleton))
+    return session.lpn_play_model(synthesis2022.Loaded(model, data, folder / "lpn", 0), folder)
 
 
 def free_port() -> int:
@@ -122,6 +140,9 @@ def screenshot(run: Path, path: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--run", type=Path, help="time this run folder's model (default: a random demo-size PFNN)")
+    parser.add_argument("--model", choices=("pfnn", "lpn-film"), default="pfnn",
+                        help="the 2018 PFNN or the 2022 LPN-FiLM (the run's RUN/lpn, or a random one)")
+    parser.add_argument("--hidden", type=int, default=512, help="--model lpn-film without --run: hidden units")
     parser.add_argument("--frames", type=int, default=600)
     parser.add_argument("--characters", type=int, nargs="+", default=[1, 8])
     parser.add_argument("--screenshot", type=Path, help="write a screenshot of the page on --run instead")
@@ -130,7 +151,11 @@ def main() -> None:
         screenshot(args.run or Path("runs/demo"), args.screenshot)
         return
     with tempfile.TemporaryDirectory() as tmp:
-        if args.run:
+        if args.model == "lpn-film":
+            model = session.load_any(args.run, "lpn-film") if args.run else random_lpn_model(Path(tmp), args.hidden)
+            what = (f"{args.run or 'random'} {model.title} (hidden {model.loaded.model.config.hidden_size}, "
+                    f"{model.loaded.model.config.num_experts} experts)")
+        elif args.run:
             model = session.load_model(args.run)
             what = f"{args.run} (hidden {model.base.model.hidden_size}, rank {model.base.model.rank})"
         else:

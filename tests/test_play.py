@@ -3,29 +3,36 @@ single-character ``step_fn``, style switches and blends without recompiling, rec
 
 The model is a randomly initialised PFNN on two short procedural styles (no training: these tests
 check the session's plumbing against independent references, not motion quality); the slow test
-of ``tests/test_play_browser.py`` drives a trained one."""
+of ``tests/test_play_browser.py`` drives a trained one. The 2022 model (LPN-FiLM) is a randomly
+initialised one on procedural styles with a fine-tuned new style written as ``jaxstyle lpn`` writes
+it; the slow test at the end reloads a trained one from its run folder."""
 
 from __future__ import annotations
 
 import math
+import threading
+import time
 from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
 
-from jaxstyle.control import controller
-from jaxstyle.data import procedural
+from jaxstyle.control import controller, loop, lpn_controller
+from jaxstyle.data import folders, procedural
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline
+from jaxstyle.mason2022 import pipeline as pipeline2022
+from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.motion.bvh import read_bvh
-from jaxstyle.nn import pfnn
+from jaxstyle.nn import film_generator, pfnn, style_models
 from jaxstyle.output import synthesis
 from jaxstyle.play import learn, session
 from jaxstyle.play.server import bone_transforms, ground_point
 from jaxstyle.play.session import PlayError, Steering, control_row
+from tests import test_synthesis_lpn
 
 STYLES = ("Neutral", "Crouched")
 
@@ -268,3 +275,272 @@ def test_cli_refuses_a_bad_port(tmp_path, capsys):
     assert main(["play", "--run", str(tmp_path / "r"), "--port", "70000"]) == 1
     err = capsys.readouterr().err.strip()
     assert err == "jaxstyle play: error: --port must be in 1 .. 65535, got 70000"
+
+
+# --- the 2022 model (LPN-FiLM) -----------------------------------------------------------------
+
+def random_params(config, seed: int = 1) -> dict:
+    """Random weights in the tree of :func:`jaxstyle.nn.style_models.init_model` (its shapes, by
+    ``jax.eval_shape``), drawn with numpy: scaled normal weights, zero biases. The same kind of
+    model as ``init_model``'s, without compiling a random kernel per weight shape (~15 s on 2
+    loaded cores)."""
+    shapes = jax.eval_shape(lambda k: style_models.init_model(k, config), jax.random.PRNGKey(seed))
+    rng = np.random.default_rng(seed)
+
+    def draw(path, leaf):
+        shape = leaf.shape
+        if len(shape) < 2:
+            return np.zeros(shape, np.float32)
+        conv = "conv" in jax.tree_util.keystr(path)
+        fan_in = shape[0] * shape[1] if conv else shape[-2]  # a kernel is (width, in, out)
+        return (rng.normal(size=shape) / np.sqrt(fan_in)).astype(np.float32)
+
+    return jax.tree_util.tree_map_with_path(draw, shapes)
+
+
+def tiny_lpn_model(folder: Path) -> session.LPNPlayModel:
+    """A :class:`LPNPlayModel` of a randomly initialised LPN-FiLM (no training) on two procedural
+    training styles, and a new style "Limping" fine-tuned at two rates as
+    :func:`jaxstyle.mason2022.pipeline.write_finetune` leaves it (the generators: the model's shifted
+    by a constant per rate, as ``tests/test_synthesis_lpn.py`` does, so the chosen one is told apart)."""
+    root = procedural.write_dataset(folder / "data", ["Neutral", "Crouched", "Limping"], ["FW"], seconds=7,
+                                    progress=False)
+    styles, new_styles = folders.split_styles(root, ["Limping"])
+    data = pipeline2022.build_data(root, styles, new_styles)
+    config = pipeline2022.model_config(data.base, hidden=8, generator_hidden=16, filters=4)
+    params = random_params(config)
+    model = pipeline2022.Model(pipeline2022.MODEL, config, params,
+                               pipeline2022.train_lpn.style_data(data.base, data.skeleton))
+    gens = jax.tree.map(lambda v: np.stack([np.stack([np.asarray(v) + 0.01, np.asarray(v) - 0.02])]),
+                        params["style"]["generator"])
+    after = {split: {"mse": np.full((1, 2), 0.5), "bll": np.full((1, 2), 0.01)} for split in pipeline2022.SPLITS}
+    new = pipeline2022.train_lpn.style_data(data.new, data.skeleton, base=data.base)
+    result = pipeline2022.FinetuneResult(("Limping",), (0.1, 0.5), gens, 0, 0.0, {}, after, np.array([1]), new)
+    pipeline2022.write_finetune(result, folder / "lpn")
+    return session.lpn_play_model(synthesis2022.Loaded(model, data, folder / "lpn", 0), folder)
+
+
+@pytest.fixture(scope="module")
+def lpn_model(tmp_path_factory) -> session.LPNPlayModel:
+    return tiny_lpn_model(tmp_path_factory.mktemp("play_lpn"))
+
+
+def _film_vector(model: session.LPNPlayModel, generator: dict, data, style: str) -> np.ndarray:
+    """Independent of the session: the mean FiLM vector of ``style``'s training clips (section 4.4)."""
+    s = data.styles.index(style)
+    return np.mean(film_generator.clip_films(generator, data.clips[data.train_clips[s]]), axis=0)
+
+
+def test_lpn_styles_are_the_film_vectors_of_the_training_and_finetuned_styles(lpn_model):
+    m = lpn_model.loaded.model
+    assert lpn_model.key == "lpn-film" and lpn_model.title == "2022 LPN FiLM" and not lpn_model.learnable
+    assert {n: (st.kind, st.rate) for n, st in lpn_model.styles.items()} == {
+        "Crouched": ("base", None), "Neutral": ("base", None), "Limping": ("fine-tuned", 0.5)}
+    for name in ("Crouched", "Neutral"):
+        np.testing.assert_allclose(lpn_model.styles[name].runtime,
+                                   _film_vector(lpn_model, m.params["style"]["generator"], m.data, name),
+                                   rtol=1e-5, atol=1e-6)
+    # the new style: under its chosen rate's generator (index 1: the model's minus 0.02)
+    new = pipeline2022.train_lpn.style_data(lpn_model.loaded.data.new, lpn_model.skeleton,
+                                            base=lpn_model.loaded.data.base)
+    tuned = jax.tree.map(lambda v: np.asarray(v) - 0.02, m.params["style"]["generator"])
+    np.testing.assert_allclose(lpn_model.styles["Limping"].runtime, _film_vector(lpn_model, tuned, new, "Limping"),
+                               rtol=1e-4, atol=1e-5)
+    assert lpn_model.styles["Limping"].label == "Limping (fine-tuned, rate 0.5)"
+
+
+def test_lpn_session_steps_like_the_controllers_step_and_switches_styles_without_recompiling(lpn_model):
+    """The session's one jitted call for all characters == ``lpn_controller.step_fn`` per character
+    with each character's FiLM vector; a switch feeds the new vector to the next step, compiling
+    nothing (the jit cache stays at one entry per character count)."""
+    m = lpn_model.loaded.model
+    s = session.Session(lpn_model, style="Neutral")
+    s.add_character("Crouched")
+    s.walk_to(2.0, 4.0)
+    x_norm, y_norm = lpn_model.loaded.data.base.normalisers()
+    single = lpn_controller.step_fn(m.params, m.config, None, x_norm, y_norm, lpn_model.num_bones)
+    states = [jax.tree.map(lambda v, i=i: v[i], s._states) for i in range(2)]
+    vectors = {n: np.asarray(st.runtime) for n, st in lpn_model.styles.items()}
+    compiled = None
+    for k in range(6):
+        if k == 3:
+            s.set_style("Limping", 0)  # from the next frame on
+            s.set_blend(["Neutral", "Limping"], [1.0, 3.0], 1)
+        playing = [vectors["Limping"], 0.25 * vectors["Neutral"] + 0.75 * vectors["Limping"]] if k >= 3 else \
+            [vectors["Neutral"], vectors["Crouched"]]
+        controls = s.controls()
+        frame = s.step()
+        compiled = compiled or s._step._cache_size()
+        for i in range(2):
+            row = (controls.offsets[i], controls.yaw[i], None, None, controls.stand[i])
+            states[i], out = single(states[i], row, jax.numpy.asarray(playing[i]))
+            np.testing.assert_allclose(frame.positions[i], np.asarray(out.positions)[:s.num_joints] /
+                                       lpn_model.units_per_meter, rtol=1e-4, atol=1e-5)
+    assert s._step._cache_size() == compiled == 1
+    assert s.describe(0) == ("Limping", "0.5") and s.describe(1) == ("25% Neutral + 75% Limping", "- / 0.5")
+    np.testing.assert_allclose(s.origin(), np.stack([np.asarray(st.hist_xz[-1]) for st in states]) /
+                               lpn_model.units_per_meter, atol=1e-5)
+    assert frame.positions.shape == (2, lpn_model.skeleton.num_joints, 3)  # the skeleton's joints, not end sites
+
+
+def test_lpn_film_blend_is_the_weighted_film_vector(lpn_model):
+    s = session.Session(lpn_model)
+    s.add_character()  # two, as above: the step compiled there serves
+    s.step()
+    compiled = s._step._cache_size()
+    s.set_blend(["Neutral", "Crouched", "Limping"], [1.0, 2.0, 5.0])
+    w = np.array([1.0, 2.0, 5.0]) / 8.0
+    want = sum(wk * np.asarray(lpn_model.styles[n].runtime, np.float64)
+               for wk, n in zip(w, ("Neutral", "Crouched", "Limping"), strict=True))
+    np.testing.assert_allclose(np.asarray(s.runtime_of(s.characters[0])), want, rtol=1e-5, atol=1e-7)
+    assert s.describe()[0] == "12% Neutral + 25% Crouched + 62% Limping"
+    s.step()
+    s.set_style("Crouched")
+    np.testing.assert_array_equal(np.asarray(s.runtime_of(s.characters[0])), lpn_model.styles["Crouched"].runtime)
+    s.step()
+    assert s._step._cache_size() == compiled
+
+
+def test_lpn_steering_reaches_the_network_input(lpn_model, tmp_path):
+    """A click target becomes the LPN's future-trajectory input: its farthest sample (where the
+    user's path has full weight) points from the character at the target, in the character's
+    frame; keys steer the same way; a recording of the 2022 model writes BVH and GIF."""
+    s = session.Session(lpn_model)
+    s.add_character()  # two, as above: the step compiled there serves
+    for _ in range(5):
+        s.step()
+    here, yaw = s.origin()[0], float(s.yaw()[0])
+    target = here + np.array([3.0, -1.0])
+    s.walk_to(*target)
+    controls = s.controls()
+    state = jax.tree.map(lambda v: v[0], s._states)
+    x = np.asarray(loop.trajectory_input(state.hist_xz, state.hist_yaw, state.future,
+                                         (controls.offsets[0], controls.yaw[0])))
+    fx, fz = x[11], x[23]  # x | z at the 12 samples -60 .. 50: the last of each is 50 frames ahead
+    d = target - here
+    want = lpn_model.units_per_meter * min(s.speed * 50 / 60, np.hypot(*d)) * d / np.hypot(*d)
+    c, si = math.cos(yaw), math.sin(yaw)  # into the character frame (loop.rotate_xz by -yaw)
+    np.testing.assert_allclose([fx, fz], [want[0] * c - want[1] * si, want[0] * si + want[1] * c], rtol=1e-4)
+    s.key("A", 0.0)
+    assert all(c.steering.mode == "direction" for c in s.characters)
+    for _ in range(20):
+        s.step()
+    files = session.save_recording(s.recording(0.25), lpn_model, tmp_path / "rec", gif=True)
+    assert {f.suffix for f in files} == {".bvh", ".npz", ".gif"}
+    motion = read_bvh(tmp_path / "rec.bvh")
+    assert motion.num_frames == 15 and motion.names == lpn_model.skeleton.names
+
+
+def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lpn_model):
+    """Table 2's PFNN FiLM (the network evaluated at a carried global phase): each character's
+    state carries its style's rate of global to local phase advance
+    (:func:`jaxstyle.control.lpn_controller.phase_ratio`, computed here directly); a style switch
+    replaces it, a blend's FiLM vector plays, and the step equals ``step_fn`` without recompiling."""
+    data = lpn_model.loaded.data
+    config = pipeline2022.model_config(data.base, "PFNN FiLM", hidden=8, generator_hidden=16, filters=4)
+    model = pipeline2022.Model("PFNN FiLM", config, random_params(config, seed=2),
+                               pipeline2022.train_lpn.style_data(data.base, data.skeleton, backbone="pfnn"))
+    m = session.lpn_play_model(synthesis2022.Loaded(model, data, lpn_model.run_dir / "pfnn", 0), lpn_model.run_dir)
+    assert m.key == "pfnn-film" and set(m.styles) == {"Neutral", "Crouched"}
+    x_norm, y_norm = data.base.normalisers()
+
+    def ratio(runtime, name):
+        return lpn_controller.phase_ratio(model.params, config, runtime, x_norm, y_norm, data.base,
+                                          synthesis.style_rows(data.base, name))
+
+    want = {n: ratio(m.styles[n].runtime, n) for n in ("Neutral", "Crouched")}
+    assert want["Neutral"] != want["Crouched"]
+    s = session.Session(m, style="Neutral")
+    s.add_character("Crouched")
+    s.walk_to(1.0, 3.0)  # walking: the standing amount stays 0 (controls() below eases it as step() does)
+    s.step()
+    compiled = s._step._cache_size()
+    np.testing.assert_allclose(s._states.phase_ratio, [want["Neutral"], want["Crouched"]], rtol=1e-6)
+    s.set_style("Crouched", 0)
+    s.set_blend(["Neutral", "Crouched"], [1.0, 3.0], 1)
+    single = lpn_controller.step_fn(model.params, config, None, x_norm, y_norm, m.num_bones)
+    controls = s.controls()
+    before = jax.tree.map(lambda v: v[1], s._states)
+    frame = s.step()
+    blend = 0.25 * np.asarray(m.styles["Neutral"].runtime) + 0.75 * np.asarray(m.styles["Crouched"].runtime)
+    np.testing.assert_allclose(s._states.phase_ratio, [want["Crouched"], ratio(blend, "Crouched")], rtol=1e-5)
+    # character 1's step, at the blend's rate, against step_fn with the blended FiLM vector
+    state = before._replace(phase_ratio=jax.numpy.float32(ratio(blend, "Crouched")))
+    _, out = single(state, (controls.offsets[1], controls.yaw[1], None, None, controls.stand[1]),
+                    jax.numpy.asarray(blend, jax.numpy.float32))
+    np.testing.assert_allclose(frame.positions[1], np.asarray(out.positions)[:s.num_joints] / m.units_per_meter,
+                               rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(s._states.global_phase[1], out.global_phase, atol=1e-6)
+    assert s._step._cache_size() == compiled
+
+
+def test_run_folder_models_and_bad_choices(lpn_model, tmp_path, capsys):
+    folder = lpn_model.run_dir
+    assert session.available_models(folder) == {}  # no config.json: this one was never trained
+    (folder / "lpn" / "config.json").write_text("{}")
+    pipeline2022.write_data_file(lpn_model.loaded.data, folder / "lpn")
+    assert session.available_models(folder) == {"lpn-film": "2022 LPN FiLM (Mason et al. 2022)"}
+    with pytest.raises(PlayError, match="no trained mann-film model"):
+        session.load_any(folder, "mann-film")
+    with pytest.raises(JaxstyleError, match="no base model"):
+        session.load_any(tmp_path, "pfnn")
+    from jaxstyle.cli.main import main
+
+    assert main(["play", "--run", str(folder), "--model", "pfnn"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        f"jaxstyle play: error: --model pfnn: {folder} has no trained pfnn model (it has lpn-film); train one with "
+        "`jaxstyle demo`")
+
+
+trained_lpn_run = test_synthesis_lpn.run_dir
+"""A run folder with a tiny LPN-FiLM trained for one epoch into RUN/lpn and a fine-tuned new style:
+the fixture of ``tests/test_synthesis_lpn.py``, reused (about 30 s on 2 cores: the test is slow)."""
+
+
+@pytest.mark.slow
+def test_play_a_trained_2022_model_from_its_run_folder(trained_lpn_run, model, tmp_path):
+    """The page on a run folder with a trained 2022 model: the Model choice switches from the 2018
+    model to it and back (each loaded once: the 2018 model and its learner stay the same objects);
+    the 2022 model's styles in the dropdown; learning refused in one line while it plays; a target
+    ahead approached (a one-epoch model walks forward whatever it is told, so only a target ahead
+    is a fair check of its motion)."""
+    from jaxstyle.play.server import PlayServer
+
+    run = trained_lpn_run[0]
+    assert session.available_models(run) == {"lpn-film": "2022 LPN FiLM (Mason et al. 2022)"}
+    server = PlayServer(run, port=0).start(model=model, loop=False)  # a 2018 model, given, and RUN/lpn
+    try:
+        learner = server.learner
+        assert server.session.model is model and learner is not None and not server._gui["learn"].disabled
+        assert server._gui["model"].options == ("2022 LPN FiLM (Mason et al. 2022)", "2018 PFNN")
+        assert server._gui["model"].value == "2018 PFNN"
+        assert not [t for t in threading.enumerate() if t.name == "jaxstyle-play-model"]  # refreshing loads nothing
+        server._gui["model"].value = "2022 LPN FiLM (Mason et al. 2022)"  # as the page's Model choice does
+        for _ in range(600):
+            if server.session.model.key == "lpn-film":
+                break
+            time.sleep(0.1)
+        s = server.session
+        assert s.model.key == "lpn-film" and server.learner is learner  # the 2018 model's, kept
+        assert {n: (st.kind, st.rate) for n, st in s.styles.items()} == {
+            "Crouched": ("base", None), "Neutral": ("base", None), "Limping": ("fine-tuned", 0.5)}
+        assert server._gui["style"].options == ("Crouched", "Neutral", "Limping")
+        assert server._gui["model"].value == "2022 LPN FiLM (Mason et al. 2022)"
+        assert "2018 PFNN" in server._gui["model"].options  # the given 2018 model can still be chosen
+        assert server._gui["learn"].disabled and "2018 few-shot sweep" in server._gui["learn_note"].content
+        with pytest.raises(PlayError, match="choose the 2018 PFNN under Model"):
+            server.learn(str(tmp_path / "clip.bvh"))
+        server.set_style("Limping")
+        assert s.characters[0].style == "Limping"
+        for _ in range(30):
+            s.step()
+        start = s.origin()[0].copy()
+        target = start + np.array([0.0, 3.0])
+        s.walk_to(*target)
+        for _ in range(120):
+            s.step()
+        assert np.linalg.norm(s.origin()[0] - target) < 3.0 - 0.5
+        assert server.load_model_key("pfnn")
+        assert server.session.model is model and server.learner is learner and not server._gui["learn"].disabled
+    finally:
+        server.stop()

@@ -40,14 +40,24 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def wait_for(condition, timeout: float, what: str, poll: float = 0.1):
+# How long to wait for something the PAGE must do (render, report its camera, show a text). The
+# page draws its WebGL in software (SwiftShader; no GPU): on the 2-core machine with the other
+# test process busy it renders at about 4 frames/s at 1280x720 (measured with requestAnimationFrame
+# while a training job ran), and a page that slow once needed over 10 s to show a new status line.
+PAGE_SECONDS = 30.0
+
+
+def wait_for(condition, timeout: float, what: str, poll: float = 0.1, detail=None):
+    """The first truthy value of ``condition()`` within ``timeout`` seconds; else an
+    AssertionError naming ``what`` (and ``detail()``, what was seen, when given)."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
         value = condition()
         if value:
             return value
         time.sleep(poll)
-    raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+    seen = f"; {detail()}" if detail is not None else ""
+    raise AssertionError(f"timed out after {timeout:g} s waiting for {what}{seen}")
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +72,8 @@ def browser():
 
 
 def open_page(browser, server: PlayServer):
-    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    # 960x540: SwiftShader's cost grows with the pixels (640x360 rendered twice as fast as 1280x720)
+    page = browser.new_page(viewport={"width": 960, "height": 540})
     page.goto(server.url)
     page.wait_for_selector("canvas", timeout=60_000)
     wait_for(lambda: server._server.get_clients(), 30, "the page to connect")
@@ -117,11 +128,14 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
     # the camera follows: the page's own report puts its look-at point on the standing character
     # (a regression test: the follow once set look_at before position, and viser's position
     # setter moves look_at along, so the page looked at the wrong place)
-    position, look_at = wait_for(page_views_character, 20, "the page's camera to follow the character")
+    position, look_at = wait_for(page_views_character, PAGE_SECONDS, "the page's camera to follow the character",
+                                 detail=lambda: f"{len(reported)} camera reports, the last {reported[-1:]}, the "
+                                                f"character at {server.session.origin()[0]}, the server's copy of the "
+                                                f"page's camera {client.camera.look_at}")
     ray = look_at - position
     floor = (position + ray * (-position[1] / ray[1]))[[0, 2]]  # where the middle of the view meets y = 0
     page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
-    targets = wait_for(lambda: server.session.targets()[0], 20, "the click to set a target")
+    targets = wait_for(lambda: server.session.targets()[0], PAGE_SECONDS, "the click to set a target")
     target = np.asarray(targets[0])
     assert np.linalg.norm(target - floor) < 0.05, (target, floor)  # the click's ray met the floor there
     with server.lock:
@@ -136,15 +150,16 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
     # a key: D walks to the camera's right
     page.keyboard.press("d")
     steering = wait_for(lambda: server.session.characters[0].steering.mode == "direction"
-                        and server.session.characters[0].steering, 10, "the key to steer")
+                        and server.session.characters[0].steering, PAGE_SECONDS, "the key to steer")
     assert abs(np.cos(steering.heading - (server.camera_yaw() - np.pi / 2)) - 1) < 1e-6
     # the style dropdown
     before = server.session.characters[0].style
     other = next(name for name in server.session.styles if name != before)
     page.get_by_label("Style", exact=True).click()
     page.get_by_role("option", name=other, exact=True).click()
-    wait_for(lambda: server.session.characters[0].style == other, 10, "the style switch")
-    wait_for(lambda: f"Style: {other}" in page.inner_text("body"), 10, "the page to show it")
+    wait_for(lambda: server.session.characters[0].style == other, PAGE_SECONDS, "the style switch")
+    wait_for(lambda: f"Style: {other}" in page.inner_text("body"), PAGE_SECONDS, "the page to show it",
+             detail=lambda: f"the page shows {page.inner_text('body')[:300]!r}")
     # a screenshot that shows something
     time.sleep(0.5)
     png = page.screenshot(path=str(tmp_path / "play.png"))
@@ -159,20 +174,20 @@ def test_bad_input_shows_a_message_in_the_page(browser, served, tmp_path):
     # a BVH of another skeleton, by path
     text_field(page, "BVH path").fill(str(other_skeleton_bvh(tmp_path / "robot.bvh")))
     page.get_by_text("Learn the style of this file").click()
-    page.get_by_text("another skeleton", exact=False).first.wait_for(timeout=20_000)
+    page.get_by_text("another skeleton", exact=False).first.wait_for(timeout=1000 * PAGE_SECONDS)
     # a file that is not BVH, uploaded
     notes = tmp_path / "notes.bvh"
     notes.write_text("just some notes\n")
     page.set_input_files("input[type=file]", str(notes))
-    wait_for(lambda: "notes.bvh" in server.message, 20, "the upload to be refused")
+    wait_for(lambda: "notes.bvh" in server.message, PAGE_SECONDS, "the upload to be refused")
     reason = server.message.rsplit(": ", 1)[-1]  # after "<file>, line N: "
-    page.get_by_text(reason, exact=False).first.wait_for(timeout=20_000)
+    page.get_by_text(reason, exact=False).first.wait_for(timeout=1000 * PAGE_SECONDS)
     # a run folder with no model
     empty = tmp_path / "empty_run"
     empty.mkdir()
     text_field(page, "Run folder").fill(str(empty))
     page.get_by_role("button", name="Load this run folder", exact=True).click()
-    page.get_by_text("no base model", exact=False).first.wait_for(timeout=30_000)
+    page.get_by_text("no base model", exact=False).first.wait_for(timeout=1000 * PAGE_SECONDS)
     # the server is alive and still plays the model it had
     frames = server.session.frames
     wait_for(lambda: server.session.frames > frames + 10, 10, "the render loop to go on")
@@ -200,10 +215,10 @@ def test_learn_a_style_live_and_record(browser, tmp_path):
         assert server.learner.state == "done", server.learner.message
         assert server.session.frames > frames + 60  # the character walked on meanwhile
         assert "Proud_FW" in server.session.styles and server.session.styles["Proud_FW"].kind == "learned"
-        page.get_by_text("learned Proud_FW", exact=False).first.wait_for(timeout=20_000)
+        page.get_by_text("learned Proud_FW", exact=False).first.wait_for(timeout=1000 * PAGE_SECONDS)
         page.get_by_label("Style", exact=True).click()
         page.get_by_role("option", name="Proud_FW", exact=True).click()
-        wait_for(lambda: server.session.characters[0].style == "Proud_FW", 10, "the learned style to play")
+        wait_for(lambda: server.session.characters[0].style == "Proud_FW", PAGE_SECONDS, "the learned style to play")
         time.sleep(2.0)
         page.get_by_text("Save the last seconds").click()
         wait_for(lambda: server.last_recording, 120, "the recording")

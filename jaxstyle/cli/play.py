@@ -7,22 +7,32 @@ from pathlib import Path
 
 from jaxstyle.cli.common import DEMO_RUN, SWEEP_RATES, CLIError, Run, add_common, check_positive
 
+PLAY_MODELS = ("pfnn", "lpn-film", "lpn-onehot", "lpn-resad", "mann-film", "pfnn-film", "pfnn-onehot", "pfnn-resad")
+"""``--model``: the 2018 PFNN and the 2022 models of Table 2 (``jaxstyle.mason2022.synthesis.MODELS``)."""
+
 NAME = "play"
 HELP = "steer a styled character live in the browser: switch, blend and learn styles, record"
 DOC = """\
 Serve a web page (http://HOST:PORT) showing a character driven live by the run's PFNN (Mason et al.
-2018), one controller step per frame at 60 frames/s:
+2018) or its trained 2022 model (Mason et al. 2022, LPN-FiLM: RUN/lpn, written by `jaxstyle lpn` or
+`jaxstyle demo --model lpn-film`), one controller step per frame at 60 frames/s:
 
+- model: when the run holds both, the page's Model choice switches between them (--model picks
+  the one to start with; default the 2018 PFNN when there is one);
 - steer: click the ground (Shift+click adds waypoints), the Walk buttons, or the keys W A S D /
   arrows relative to the camera (Shift runs, Space stops); the camera follows;
-- styles: every base and few-shot style of the run in a dropdown, switched on the next frame;
-  a blend of up to three styles with weight sliders;
-- learn a style: upload (or give the path of) a BVH clip of the base skeleton; the few-shot
-  sweep runs in the background (progress in the page) and the new style joins the dropdown
-  with its chosen dropout rate (kept in RUN/play/styles for later sessions);
+- styles: every style of the model in a dropdown, switched on the next frame (2018: base styles,
+  few-shot adapters, styles learned live; 2022: training styles as their FiLM vectors and the
+  styles the FiLM sweep fine-tuned); a blend of up to three styles with weight sliders (the CP
+  adapters' exact blend; the 2022 model's weighted FiLM vector);
+- learn a style (2018 model; disabled, saying so, while a 2022 model plays): upload (or give the
+  path of) a BVH clip of the base skeleton; the few-shot sweep runs in the background (progress
+  in the page) and the new style joins the dropdown with its chosen dropout rate (kept in
+  RUN/play/styles for later sessions);
 - record: save the last seconds as BVH (feet pinned) and GIF in RUN/play/recordings.
 
-Without --run it plays runs/demo, running `jaxstyle demo` first when that holds no model.
+Without --run it plays runs/demo, running `jaxstyle demo` first when that holds no model
+(`jaxstyle demo --model lpn-film` with --model lpn-film).
 Stop with Ctrl-C.
 """
 
@@ -31,6 +41,9 @@ def add_arguments(p) -> None:
     add_common(p, DEMO_RUN)
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0: every network interface)")
     p.add_argument("--port", type=int, default=8080, help="port of the page")
+    p.add_argument("--model", choices=PLAY_MODELS, default=None,
+                   help="the model to start with: pfnn (the 2018 base, RUN/base) or the run's trained 2022 model "
+                        "(lpn-film ...: RUN/lpn); default pfnn when the run has one; the page switches between them")
     p.add_argument("--learn-epochs", type=int, default=40, help="fine-tuning epochs of a style learned live "
                                                                  "(the demo's sweep uses 40)")
     p.add_argument("--rates", type=float, nargs="+", default=SWEEP_RATES, help="dropout rates to sweep when learning")
@@ -44,27 +57,43 @@ def _run_demo(run: Run, args) -> None:
     from jaxstyle.cli.main import build_parser
 
     parser, _ = build_parser()
-    demo_args = parser.parse_args(["demo", "--run", str(run.dir)] + (["--quiet"] if args.quiet else []))
+    model = ["--model", args.model] if args.model and args.model != "pfnn" else []
+    demo_args = parser.parse_args(["demo", "--run", str(run.dir)] + model + (["--quiet"] if args.quiet else []))
     resolve_defaults(demo_args)
     demo.run(demo_args, run)
 
 
 def run(args, run: Run) -> None:
     from jaxstyle.play.server import PlayServer
+    from jaxstyle.play.session import available_models
 
     check_positive(args, "learn_epochs", "record_seconds")
     if not 0 < args.port < 65536:
         raise CLIError(f"--port must be in 1 .. 65535, got {args.port}")
     if any(not 0 <= r < 1 for r in args.rates):
         raise CLIError(f"--rates must be in [0, 1), got {' '.join(map(str, args.rates))}")
-    has_model = (Path(args.run) / "base" / "base.json").is_file()
-    if not has_model and Path(args.run) == DEMO_RUN:
-        run.say(f"no model in {args.run} yet: running `jaxstyle demo` first (about 5 minutes on 2 CPU cores)")
+    have = available_models(args.run)
+    wanted = args.model or "pfnn"
+    if not have and Path(args.run) == DEMO_RUN:
+        from jaxstyle.cli.demo import DEMO_MODELS
+
+        if wanted not in DEMO_MODELS:
+            raise CLIError(f"no model in {args.run} yet, and `jaxstyle demo` trains {', '.join(DEMO_MODELS)}, not "
+                           f"{wanted}: train one with `jaxstyle lpn --run RUN` and give --run RUN")
+        demo = "jaxstyle demo" + ("" if wanted == "pfnn" else f" --model {wanted}")
+        run.say(f"no model in {args.run} yet: running `{demo}` first (about 5 minutes on 2 CPU cores)")
         _run_demo(run, args)
-    elif not has_model:
-        run.say(f"no model in {args.run}/base: the page says so and can load another run folder")
+        have = available_models(args.run)
+    if not have:
+        run.say(f"no model in {args.run} (no base/ nor lpn/): the page says so and can load another run folder")
+    elif args.model and args.model not in have:
+        how = ("`jaxstyle demo`" if args.model == "pfnn" else
+               f"`jaxstyle lpn` or `jaxstyle demo --model {args.model}` (into RUN/lpn)")
+        raise CLIError(f"--model {args.model}: {args.run} has no trained {args.model} model (it has "
+                       f"{', '.join(have)}); train one with {how}")
     server = PlayServer(args.run, host=args.host, port=args.port, learn_epochs=args.learn_epochs,
-                        learn_rates=tuple(args.rates), record_seconds=args.record_seconds, log=run.say)
+                        learn_rates=tuple(args.rates), record_seconds=args.record_seconds, model=args.model,
+                        log=run.say)
     try:
         server.start()  # says where the page is, then loads the run
         while True:

@@ -1,6 +1,7 @@
 """``jaxstyle play``: steer a styled character live in the browser.
 
-* :mod:`jaxstyle.play.session`: the browser-free state: a run's styles, characters, steering
+* :mod:`jaxstyle.play.session`: the browser-free state: a run's models (the 2018 PFNN, a trained
+  2022 model) and their styles, characters, steering
   (click targets, waypoints, directions, keys) -> the controller's per-frame controls, one
   jitted step for all characters, style switches and blends, the recording buffer;
 * :mod:`jaxstyle.play.learn`: learning a new style from a clip in a background thread (the

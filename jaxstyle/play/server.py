@@ -13,6 +13,12 @@ steps the session and updates the scene every 1/60 s; learning a style runs in a
 (:class:`jaxstyle.play.learn.Learner`) and saving a recording in a short-lived one, so nothing
 blocks the render loop. A lock serialises every access to the session.
 
+Models: a run folder may hold the 2018 PFNN (``RUN/base``) and a trained 2022 model (``RUN/lpn``);
+the page's "Model" choice switches between them (each loaded and compiled once per server, then
+kept), the style dropdown and the blend sliders acting on the model that plays. Learning a style
+live is the 2018 few-shot sweep: while a 2022 model plays, the learn controls are disabled and say
+so (a style learned meanwhile joins the 2018 model's styles).
+
 Bad input (a BVH of another skeleton, a file that is not BVH, a run folder without a model, a
 failed recording) shows one line in the page (``message``) and in a notification; the server
 keeps running.
@@ -32,7 +38,18 @@ import numpy as np
 
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.play import learn
-from jaxstyle.play.session import PLAY_DIR, PlayError, PlayModel, Session, Style, load_model, save_recording
+from jaxstyle.play.session import (
+    PFNN,
+    PLAY_DIR,
+    AnyPlayModel,
+    PlayError,
+    PlayModel,
+    Session,
+    Style,
+    available_models,
+    load_any,
+    save_recording,
+)
 
 FPS = 60.0
 BONE_RADIUS_M = 0.035
@@ -40,6 +57,11 @@ JOINT_RADIUS_M = 0.05
 COLORS = np.array([[90, 160, 230], [230, 120, 80], [110, 190, 110], [200, 110, 200], [220, 190, 80],
                    [90, 200, 200], [170, 170, 170], [240, 140, 170]], dtype=np.uint8)
 NO_BLEND = "(none)"
+NO_MODEL = "(none)"
+LEARN_2018_ONLY = ("learning a style live is the 2018 few-shot sweep (Mason et al. 2018): choose the 2018 PFNN "
+                   "under Model to learn one; a 2022 model learns new styles with `jaxstyle lpn --clip FILE`")
+NO_2018_MODEL = ("learning a style live is the 2018 few-shot sweep (Mason et al. 2018), and this run folder has no "
+                 "2018 model (RUN/base); a 2022 model learns new styles with `jaxstyle lpn --clip FILE`")
 STEER_BUTTONS = {"Left": "A", "Forward": "W", "Back": "S", "Right": "D"}
 
 
@@ -100,13 +122,22 @@ class PlayServer:
     ``start()`` serves the page, loads the run (a failure shows in the page) and starts the render
     loop; ``stop()`` ends both. What the page shows is also here for tests and scripts:
     ``session`` (``None`` until a run is loaded), ``message`` (the last error or note),
-    ``step_ms`` / ``frame_ms`` (the controller step and the whole frame, smoothed) and ``learner``.
+    ``step_ms`` / ``frame_ms`` (the controller step and the whole frame, smoothed) and ``learner``
+    (the 2018 model's; ``None`` without one).
+
+    ``model``: the model to start with (``pfnn`` or a 2022 key such as ``lpn-film``,
+    :func:`jaxstyle.play.session.available_models`); default the run's 2018 model when it has one.
     """
 
     def __init__(self, run_dir: str | Path, *, host: str = "127.0.0.1", port: int = 8080, learn_epochs: int = 40,
-                 learn_rates=None, record_seconds: float = 10.0, verbose: bool = False,
+                 learn_rates=None, record_seconds: float = 10.0, verbose: bool = False, model: str | None = None,
                  log: Callable[[str], None] = lambda _: None):
         self.run_dir = Path(run_dir)
+        self.model_key = model
+        self._models: dict[tuple[str, str], AnyPlayModel] = {}  # loaded once per (run folder, model)
+        self._learners: dict[int, tuple[PlayModel, learn.Learner]] = {}  # per 2018 model (kept alive with it)
+        self._model_keys: dict[str, str] = {}  # the Model choice's labels -> keys
+        self._refreshing_models = False
         self.host, self.port, self.verbose, self.log = host, int(port), verbose, log
         self.learn_epochs = int(learn_epochs)
         self.learn_rates = learn_rates
@@ -125,7 +156,7 @@ class PlayServer:
         self._cam_offset = np.array([2.2, 1.4, -3.6])
 
     # --- life cycle ---------------------------------------------------------------------------
-    def start(self, load: bool = True, model: PlayModel | None = None, loop: bool = True) -> "PlayServer":
+    def start(self, load: bool = True, model: AnyPlayModel | None = None, loop: bool = True) -> "PlayServer":
         """Serve the page, load the run (or play ``model``) and, with ``loop``, start the render
         loop (without it nothing moves until the caller steps the session and updates the scene:
         ``benchmarks/play.py``)."""
@@ -157,34 +188,69 @@ class PlayServer:
     def url(self) -> str:
         return f"http://{self.host}:{self.port}"
 
-    def load_run(self, run_dir: str | Path, model: PlayModel | None = None) -> bool:
-        """Load the run folder (its base, few-shot and learned styles; or play ``model``, already
-        loaded) and start one character; on failure keep the current one, show the message and
-        return False."""
+    def load_run(self, run_dir: str | Path, model: AnyPlayModel | None = None, key: str | None = None) -> bool:
+        """Load the run folder's model ``key`` (``pfnn``: the 2018 base, its few-shot and learned
+        styles; a 2022 key: the trained model of ``RUN/lpn`` and its styles; default: the server's
+        ``model``, else the 2018 one when there is one) or play ``model``, already loaded, and start
+        one character; on failure keep the current one, show the message and return False. A
+        model loaded once is kept (switching back compiles nothing again)."""
         run_dir = Path(run_dir)
+        have = available_models(run_dir)
+        if model is None and key is None:
+            key = self.model_key if self.model_key in have else next(iter(have), PFNN)
         self._set_status("loading " + str(run_dir) + " ...")
-        self.log(f"loading {run_dir} ...")
+        self.log(f"loading {run_dir}{'' if model is not None else f' ({key})'} ...")
         try:
-            model = model or load_model(run_dir)
+            if model is None:
+                cached = self._models.get((str(run_dir), key))
+                model = cached or load_any(run_dir, key)
             session = Session(model, record_seconds=max(self.record_seconds, 30.0))
             session.step()  # compiles the step
         except (JaxstyleError, ValueError, KeyError, OSError) as e:
             self.show_error(f"{run_dir}: {_one_line(e)}")
-            self._set_status("no model loaded: give a run folder with a trained base below")
+            if self.session is None:
+                self._set_status("no model loaded: give a run folder with a trained model below")
             return False
         with self.lock:
+            if str(run_dir) != str(self.run_dir):
+                self._models = {k: v for k, v in self._models.items() if k[0] == str(run_dir)}
+            self._models[(str(run_dir), model.key)] = model
             self.run_dir = run_dir
             self.session = session
-            self.learner = learn.Learner(model, self._learned, on_fail=self._learn_failed, epochs=self.learn_epochs,
-                                         **({"rates": self.learn_rates} if self.learn_rates else {}))
+            self.learner = self._learner_for(run_dir)
             self._clear_characters()
+        # the run's models, and any given to this server for it (a model passed to start())
+        extra = {k: m.title for (d, k), m in self._models.items() if d == str(run_dir) and k not in have}
+        self._refresh_model_options({**have, **extra})
+        self._refresh_learn_controls()
         self._refresh_style_options()
         self._gui["speed"].value = round(session.speed / 0.05) * 0.05
         self._gui["run"].value = str(run_dir)
         self.message = ""
         self._gui["message"].content = ""
-        self.log(f"loaded {run_dir}: styles {', '.join(model.styles)}")
+        self.log(f"loaded {model.title} of {run_dir}: styles {', '.join(model.styles)}")
         return True
+
+    def _learner_for(self, run_dir: Path) -> learn.Learner | None:
+        """The learner of the run's 2018 model (loaded when a 2022 model plays but the run has a
+        2018 one too, so a style learned meanwhile has a model to join); ``None`` without one."""
+        model = self._models.get((str(run_dir), PFNN))
+        if model is None and self.session is not None and isinstance(self.session.model, PlayModel) \
+                and self.session.model.run_dir == run_dir:
+            model = self.session.model
+        if model is None:
+            return None
+        if id(model) not in self._learners:
+            self._learners[id(model)] = (model, learn.Learner(
+                model, lambda style, m=model: self._learned(style, m), on_fail=self._learn_failed,
+                epochs=self.learn_epochs, **({"rates": self.learn_rates} if self.learn_rates else {})))
+        return self._learners[id(model)][1]
+
+    def load_model_key(self, key: str) -> bool:
+        """Switch to the run folder's model ``key`` (the page's Model choice)."""
+        if self.session is not None and key == self.session.model.key:
+            return True
+        return self.load_run(self.run_dir, key=key)
 
     # --- messages -----------------------------------------------------------------------------
     def show_error(self, text: str) -> None:
@@ -252,7 +318,7 @@ class PlayServer:
     def _add_character_nodes(self, i: int, frame) -> None:
         scene = self._server.scene
         color = tuple(int(c) for c in COLORS[i % len(COLORS)])
-        parents = self.session.model.base.skeleton.parents
+        parents = self.session.model.skeleton.parents
         mid, q, s = bone_transforms(frame.positions[i], parents)
         bones = scene.add_batched_meshes_simple(f"/characters/{i}/bones", *self._cylinder, q, mid, batched_scales=s,
                                                 batched_colors=color, lod="off", cast_shadow=True)
@@ -269,7 +335,7 @@ class PlayServer:
         return np.c_[f[:, 0], np.full(len(f), 0.02), f[:, 1]].astype(np.float32)
 
     def _update_scene(self, frame, targets) -> None:
-        parents = self.session.model.base.skeleton.parents
+        parents = self.session.model.skeleton.parents
         while len(self._nodes) > len(frame.positions):
             for n in self._nodes.pop():
                 n.remove()
@@ -370,7 +436,8 @@ class PlayServer:
         name, rate = self.session.describe(0)
         n = len(self.session.characters)
         self._gui["status"].content = (
-            f"**Style:** {name}  \n**Dropout rate:** {rate}  \n**Controller step:** {self.step_ms:.2f} ms "
+            f"**Model:** {self.session.model.title}  \n**Style:** {name}  \n**Dropout rate:** {rate}  \n"
+            f"**Controller step:** {self.step_ms:.2f} ms "
             f"({n} character{'s' if n > 1 else ''}); frame {self.frame_ms:.2f} ms")
         if self.learner is not None and self.learner.state == "running":
             state, fraction, message = self.learner.status()
@@ -384,6 +451,7 @@ class PlayServer:
         gui.configure_theme(control_width="medium", show_logo=False)
         g["status"] = gui.add_markdown("loading ...")
         g["message"] = gui.add_markdown("")
+        g["model"] = gui.add_dropdown("Model", options=[NO_MODEL], initial_value=NO_MODEL)
         with gui.add_folder("Steer"):
             gui.add_markdown("Click the ground to walk there (Shift+click adds a waypoint); keys W A S D or the "
                              "arrows walk relative to the camera (Shift runs), Space stops.")
@@ -421,6 +489,7 @@ class PlayServer:
         g["add"].on_click(lambda _: self._guarded(lambda: self.session.add_character(g["style"].value))())
         g["remove"].on_click(lambda _: self._guarded(self.session_remove)())
         g["style"].on_update(lambda _: self._guarded(self._on_style)())
+        g["model"].on_update(lambda _: self._on_model())
         g["blend_on"].on_click(lambda _: self._guarded(self._on_blend)())
         for handle in g["weights"] + g["blend"]:
             handle.on_update(lambda _: self._guarded(self._on_blend_change)())
@@ -434,6 +503,38 @@ class PlayServer:
                                       modifier="shift" if shift else None)
                 cmd.on_trigger(lambda _, key=key, shift=shift: self._guarded(self.press)(key, shift))
         gui.add_command("Stop", hotkey="space").on_trigger(lambda _: self._guarded(lambda: self.session.stop())())
+
+    def _on_model(self) -> None:
+        """The Model choice: load (or take from the loaded ones) the chosen model in a thread, the
+        current one playing on meanwhile."""
+        key = self._model_keys.get(self._gui["model"].value)
+        if self._refreshing_models or key is None or self.session is None or key == self.session.model.key:
+            return
+        threading.Thread(target=self.load_model_key, args=(key,), name="jaxstyle-play-model", daemon=True).start()
+
+    def _refresh_model_options(self, have: dict[str, str]) -> None:
+        # viser calls on_update for values set here too (and when new options drop the old value)
+        self._refreshing_models = True
+        try:
+            self._model_keys = {label: key for key, label in have.items()}
+            g = self._gui["model"]
+            g.options = list(self._model_keys)
+            g.value = have.get(self.session.model.key, next(iter(self._model_keys)))
+        finally:
+            self._refreshing_models = False
+
+    def _refresh_learn_controls(self) -> None:
+        """Learning a style live needs the 2018 model: disabled, and saying so, while a 2022 one plays."""
+        off = not self.session.model.learnable
+        for k in ("upload", "path", "learn"):
+            self._gui[k].disabled = off
+        if off:
+            self._gui["learn_note"].content = f"**{self.session.model.title}:** {self._learn_refusal()}."
+        elif self.learner is None or self.learner.state == "idle":
+            self._gui["learn_note"].content = ""
+
+    def _learn_refusal(self) -> str:
+        return LEARN_2018_ONLY if PFNN in self._model_keys.values() else NO_2018_MODEL
 
     def _guarded_load(self) -> None:
         path = self._gui["run"].value.strip()
@@ -494,6 +595,8 @@ class PlayServer:
     def _on_upload(self, uploaded) -> None:
         if not uploaded.name:
             return
+        if not self.session.model.learnable or self.learner is None:
+            raise PlayError(f"{self.session.model.title} plays: {self._learn_refusal()}")
         folder = self.run_dir / PLAY_DIR / "uploads"
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / Path(uploaded.name).name
@@ -504,6 +607,8 @@ class PlayServer:
         """Start learning the BVH file at ``path`` in the background (progress in the page)."""
         if not str(path).strip():
             raise PlayError("give the path of a BVH file (or upload one)")
+        if not self.session.model.learnable or self.learner is None:
+            raise PlayError(f"{self.session.model.title} plays: {self._learn_refusal()}")
         path = Path(str(path).strip()).expanduser()
         learn.check_clip(path, self.session.model)  # bad files are refused at once
         name = self.learner.start(path)
@@ -511,13 +616,20 @@ class PlayServer:
         self._gui["learn_note"].content = f"{name}: starting ..."
         return name
 
-    def _learned(self, style: Style) -> None:
+    def _learned(self, style: Style, model: PlayModel) -> None:
+        """A style learned on the 2018 ``model`` joins its styles (and the dropdown if it plays)."""
         with self.lock:
-            self.session.add_style(style)
-            self._refresh_style_options()
+            if self.session is not None and self.session.model is model:
+                self.session.add_style(style)
+                self._refresh_style_options()
+                note = ""
+            else:
+                model.styles[style.name] = style
+                note = f" (for the {model.title}: choose it under Model to play it)"
+        message = self._learners[id(model)][1].status()[2] + note
         self._gui["progress"].value = 100.0
-        self._gui["learn_note"].content = self.learner.status()[2]
-        self.log(self.learner.status()[2])
+        self._gui["learn_note"].content = message
+        self.log(message)
 
     def _learn_failed(self, message: str) -> None:
         self._gui["progress"].value = 0.0

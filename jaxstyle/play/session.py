@@ -2,7 +2,12 @@
 the characters and how the user steers them, one jitted step per displayed frame, style switches
 and blends, and the recording buffer.
 
-The runtime is the PFNN controller of Mason et al. 2018 section 7.1 (Holden et al. 2017's loop,
+A run folder may hold two models (:func:`available_models`): the 2018 PFNN with its CP adapters
+(``RUN/base``, :class:`PlayModel`) and a trained 2022 style model (``RUN/lpn``, written by
+``jaxstyle lpn`` or ``jaxstyle demo --model lpn-film``; :class:`LPNPlayModel`). A session plays one
+of them; everything but the network step and the style's runtime form is shared.
+
+The 2018 runtime is the PFNN controller of Mason et al. 2018 section 7.1 (Holden et al. 2017's loop,
 :mod:`jaxstyle.control.controller`): each frame the user's steering becomes one row of
 :class:`jaxstyle.control.loop.Controls` (the desired ground displacement and facing at the six
 future samples, 0 .. 50 frames ahead), and all characters advance by ONE frame in one jitted call
@@ -16,6 +21,19 @@ A 2- or 3-way blend is the exact CP adapter of the summed rank
 style to any other or to a blend feeds the compiled step arrays of the same shapes: a switch takes
 effect on the next frame without recompiling.
 
+The 2022 runtime (Mason, Starke & Komura 2022 section 4.4) is the controller of
+:mod:`jaxstyle.control.lpn_controller` (the same loop, the same :class:`Controls` rows with the
+same standing amount, read as that controller reads it; the network gets the local phases it
+carries, or for the PFNN backbone the global phase), ``jit(vmap(step))`` of
+:func:`jaxstyle.control.lpn_controller.model_step`, the weights compiled in as constants. Its styles
+are FiLM vectors (the training styles' runtime vectors and the styles fine-tuned by the FiLM sweep,
+:func:`jaxstyle.mason2022.synthesis.characters`; one-hot rows or adapters for the other Table 2
+models); a blend is the weighted FiLM vector (:func:`jaxstyle.nn.style_models.blend_styles`,
+linear and shape-preserving; a PFNN-backbone CP adapter padded as the 2018 ones), so a switch or a
+blend again feeds arrays of the same shapes to the compiled step. The PFNN backbone's global phase
+advances at a per-style rate (:func:`jaxstyle.control.lpn_controller.phase_ratio`), which the state
+carries: a switch replaces the character's rate in its state (an array value, no recompile).
+
 Units: the network works in the skeleton's file units; everything the user gives or sees here
 (targets, speeds, positions) is in metres, metres per second and radians, Y up, a yaw ``a``
 facing ``(sin a, cos a)`` in (x, z).
@@ -28,24 +46,28 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Callable, NamedTuple, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control import controller, loop
+from jaxstyle.control import controller, loop, lpn_controller
 from jaxstyle.control.controller import Rollout, RolloutState
+from jaxstyle.data.lpn_features import end_effector_columns
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline, selection
-from jaxstyle.nn import pfnn
-from jaxstyle.output import synthesis
+from jaxstyle.mason2022 import synthesis as synthesis2022
+from jaxstyle.nn import pfnn, style_models
+from jaxstyle.output import lpn_synthesis, synthesis
 
 MAX_BLEND = 3
 STAND_EASE = 0.1  # per frame, the share of the gap to the asked standing amount closed (``Session.controls``)
 ARRIVE_M = 0.3  # a waypoint is reached within this distance
 PLAY_DIR = "play"  # under the run folder: learned styles, uploads, recordings
+PFNN = "pfnn"  # the model key of the 2018 PFNN (the 2022 models': jaxstyle.mason2022.synthesis.MODELS)
+LPN_DIR = "lpn"  # under the run folder: the trained 2022 model (`jaxstyle lpn`, `jaxstyle demo --model lpn-film`)
 SAMPLE_SECONDS = np.arange(FUTURE_SAMPLES) * loop.SPACING / 60.0  # the future samples' times, 0 .. 50 frames
 
 
@@ -55,13 +77,20 @@ class PlayError(pipeline.PipelineError):
 
 @dataclasses.dataclass(frozen=True)
 class Style:
-    """A playable style: its ``name``, ``kind`` (``base``, ``few-shot``, ``learned``), the dropout
-    ``rate`` the sweep chose for it (``None`` for base styles) and its CP ``adapter``."""
+    """A playable style: its ``name``, ``kind`` (``base``, ``few-shot``, ``learned``; a 2022
+    model's ``base`` and ``fine-tuned``), the dropout ``rate`` the sweep chose for it (``None`` for
+    base styles) and its ``runtime`` form: the CP adapter (2018) or the FiLM vector ``(4 H,)`` (a
+    2022 FiLM model; a one-hot row or an adapter for the other 2022 models)."""
 
     name: str
     kind: str
     rate: float | None
-    adapter: dict
+    runtime: Any
+
+    @property
+    def adapter(self):
+        """The 2018 name of :attr:`runtime`."""
+        return self.runtime
 
     @property
     def label(self) -> str:
@@ -69,14 +98,134 @@ class Style:
 
 
 class PlayModel(NamedTuple):
-    """A loaded run: the base (:class:`jaxstyle.mason2018.pipeline.Base`), its ``styles`` by name,
-    the ``units_per_meter`` of its skeleton and the walking ``speed`` (m/s) of its first style."""
+    """A loaded run's 2018 model: the base (:class:`jaxstyle.mason2018.pipeline.Base`), its
+    ``styles`` by name, the ``units_per_meter`` of its skeleton and the walking ``speed`` (m/s) of
+    its first style. The methods are what a :class:`Session` needs of a model (shared with
+    :class:`LPNPlayModel`)."""
 
     base: pipeline.Base
     styles: dict[str, Style]
     units_per_meter: float
     speed: float
     run_dir: Path
+
+    @property
+    def key(self) -> str:
+        return PFNN
+
+    @property
+    def title(self) -> str:
+        return "2018 PFNN"
+
+    @property
+    def skeleton(self):
+        return self.base.skeleton
+
+    @property
+    def learnable(self) -> bool:
+        """Whether a style can be learned live on this model (:mod:`jaxstyle.play.learn`)."""
+        return True
+
+    def batched_step(self, blend_bias: float = 1.5):
+        return batched_step(self.base, blend_bias)
+
+    def start_state(self) -> RolloutState:
+        """The first style's training frame moving closest to its own speed, standing at the origin."""
+        base = self.base
+        rows = synthesis.style_rows(base.dataset, base.dataset.styles[0])
+        row = controller.start_row(base.dataset.inputs, self.speed, units_per_meter=self.units_per_meter, rows=rows,
+                                   fps=float(base.skeleton.fps))
+        return controller.initial_state(base.dataset.inputs[row], float(base.dataset.phases[row, 0]),
+                                        base.skeleton.num_joints)
+
+    def runtime(self, styles: Sequence[Style], weights=None) -> dict:
+        """One character's adapter: a style's (``weights`` ``None``) or the exact CP blend of 1-3
+        styles (:func:`jaxstyle.nn.pfnn.blend_adapters`), zero-padded to ``MAX_BLEND`` times the
+        base's rank (:func:`jaxstyle.nn.pfnn.pad_rank`) so every style and blend has one shape."""
+        if weights is None:
+            adapter = styles[0].runtime
+        else:
+            adapter = pfnn.blend_adapters(pfnn.stack_adapters([s.runtime for s in styles]), np.asarray(weights))
+        return pfnn.pad_rank(adapter, int(self.base.model.rank) * MAX_BLEND)
+
+
+class LPNPlayModel(NamedTuple):
+    """A loaded run's 2022 style model: the reloaded model and data (:class:`jaxstyle.mason2022.
+    synthesis.Loaded`), its ``styles`` by name (runtime styles: FiLM vectors for a FiLM model), the
+    skeleton's ``units_per_meter``, the walking ``speed`` (m/s) of its first training style."""
+
+    loaded: synthesis2022.Loaded
+    styles: dict[str, Style]
+    units_per_meter: float
+    speed: float
+    run_dir: Path
+
+    @property
+    def key(self) -> str:
+        name = self.loaded.model.name
+        return synthesis2022.model_key(name) if name in synthesis2022.MODELS.values() else name
+
+    @property
+    def title(self) -> str:
+        return f"2022 {self.loaded.model.name}"
+
+    @property
+    def skeleton(self):
+        return self.loaded.data.skeleton
+
+    @property
+    def learnable(self) -> bool:
+        return False
+
+    @property
+    def num_bones(self) -> int:
+        """The LPN layout's bones: the skeleton's joints, then the hand end sites."""
+        return (len(self.loaded.data.base.normalisers()[0].mean) - 48) // 12
+
+    def batched_step(self, blend_bias: float = 1.5):
+        return lpn_batched_step(self, blend_bias)
+
+    def start_state(self) -> lpn_controller.LPNState:
+        """As :meth:`PlayModel.start_state`, with that frame's local phases
+        (:func:`jaxstyle.output.lpn_synthesis.synthesize` starts its characters the same way)."""
+        ds, fps = self.loaded.data.base, float(self.skeleton.fps)
+        rows = synthesis.style_rows(ds, ds.styles[0])
+        row = loop.start_row(ds.inputs, self.speed, units_per_meter=self.units_per_meter, rows=rows, fps=fps)
+        return lpn_synthesis.start_state(ds, row, self.num_bones)  # the rate is set per character (Session.step)
+
+    def runtime(self, styles: Sequence[Style], weights=None):
+        """One character's runtime style: a style's (``weights`` ``None``) or the blend of 1-3
+        styles with barycentric ``weights`` (section 4.4: for FiLM the weighted sum of the FiLM
+        vectors, :func:`jaxstyle.nn.style_models.blend_styles`), of the same shape either way (a
+        PFNN-backbone CP adapter, whose exact blend has the summed rank, zero-padded to
+        ``MAX_BLEND`` times its rank as the 2018 adapters are)."""
+        config = self.loaded.model.config
+        if weights is None or len(styles) == 1:
+            out = styles[0].runtime
+        else:
+            stacked = jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *[s.runtime for s in styles])
+            out = style_models.blend_styles(config, stacked, jnp.asarray(weights, jnp.float32))
+        if config.backbone == "pfnn" and config.modulation == "resad":
+            out = pfnn.pad_rank(out, int(config.rank) * MAX_BLEND)
+        return out
+
+    def phase_ratio(self, styles: Sequence[Style], weights=None) -> float:
+        """The PFNN backbone's global-phase rate for a character playing ``styles`` (with
+        ``weights``): :func:`jaxstyle.control.lpn_controller.phase_ratio` of that runtime style on
+        the training rows of its (heaviest) style, as :func:`jaxstyle.output.lpn_synthesis.synthesize`
+        starts its characters. 1 for the LPN and MANN backbones, which do not read the global phase."""
+        m = self.loaded.model
+        if m.config.backbone != "pfnn":
+            return 1.0
+        name = styles[0 if weights is None else int(np.argmax(weights))].name
+        data = self.loaded.data
+        ds = data.base if data.new is None or name in data.base.styles else data.new
+        x_norm, y_norm = data.base.normalisers()
+        return float(lpn_controller.phase_ratio(m.params, m.config, self.runtime(styles, weights), x_norm, y_norm, ds,
+                                                synthesis.style_rows(ds, name)))
+
+
+AnyPlayModel = PlayModel | LPNPlayModel
 
 
 def _sweep_styles(directory: Path, base: pipeline.Base, kind: str) -> list[Style]:
@@ -115,6 +264,73 @@ def load_model(run_dir: str | Path, *, progress: bool = False, log: Callable[[st
     rows = synthesis.style_rows(base.dataset, base.dataset.styles[0])
     speed = synthesis.own_speed(base.dataset, rows, upm, base.skeleton.fps)
     return PlayModel(base, styles, upm, speed, run_dir)
+
+
+def available_models(run_dir: str | Path) -> dict[str, str]:
+    """The models a run folder holds, key -> label (the page's Model choice): ``pfnn`` for a 2018
+    base (``RUN/base/base.json``) and the 2022 model's ``--model`` key (``lpn-film``, ...) for a
+    trained 2022 model in ``RUN/lpn`` (its ``config.json`` and ``data.json``; read, not loaded)."""
+    run_dir = Path(run_dir)
+    out = {}
+    if (run_dir / "base" / "base.json").is_file():
+        out[PFNN] = "2018 PFNN (Mason et al. 2018)"
+    folder = run_dir / LPN_DIR
+    if (folder / "config.json").is_file() and (folder / "data.json").is_file():
+        try:
+            name = json.loads((folder / "data.json").read_text()).get("name", synthesis2022.pipeline.MODEL)
+        except (OSError, ValueError):
+            name = synthesis2022.pipeline.MODEL
+        key = synthesis2022.model_key(name) if name in synthesis2022.MODELS.values() else name
+        out[key] = f"2022 {name} (Mason et al. 2022)"
+    return out
+
+
+def load_lpn_model(run_dir: str | Path, *, progress: bool = False) -> LPNPlayModel:
+    """The trained 2022 model of ``RUN/lpn`` (:func:`jaxstyle.mason2022.synthesis.load_model`, its
+    rows cached in ``RUN/cache``) with its styles (:func:`lpn_play_model`). A folder without one
+    raises :class:`jaxstyle.data.folders.PipelineError` naming it."""
+    run_dir = Path(run_dir)
+    loaded = synthesis2022.load_model(run_dir / LPN_DIR, cache=run_dir / "cache", progress=progress)
+    return lpn_play_model(loaded, run_dir)
+
+
+def lpn_play_model(loaded: synthesis2022.Loaded, run_dir: str | Path | None = None) -> LPNPlayModel:
+    """A reloaded 2022 model's styles: every training style as its runtime style (a FiLM model:
+    the mean FiLM vector of the style's training clips), and the new styles fine-tuned by the FiLM
+    sweep at their chosen rate when the model's folder has ``finetuned_generators.npz`` and
+    ``chosen_rates.json`` (:func:`jaxstyle.mason2022.synthesis.characters`)."""
+    model, data = loaded.model, loaded.data
+    styles: dict[str, Style] = {}
+    for c in synthesis2022.characters(loaded, styles=list(model.data.styles)):
+        styles[c.style] = Style(c.style, "base", None, jax.tree.map(jnp.asarray, c.runtime))
+    chosen_path = loaded.directory / "chosen_rates.json"
+    if (model.config.modulation == "film" and data.new is not None and chosen_path.is_file()
+            and (loaded.directory / "finetuned_generators.npz").is_file()):
+        chosen = json.loads(chosen_path.read_text())
+        names = [n for n in chosen if n in data.new.styles and n not in styles]
+        if names:
+            for c in synthesis2022.characters(loaded, new_styles=names):
+                styles[c.style] = Style(c.style, "fine-tuned", float(chosen[c.style]["rate"]), jnp.asarray(c.runtime))
+    upm = estimate_units_per_meter(data.skeleton)
+    rows = synthesis.style_rows(data.base, data.base.styles[0])
+    speed = lpn_synthesis.own_speed(data.base, rows, upm, float(data.skeleton.fps))
+    return LPNPlayModel(loaded, styles, upm, speed, Path(run_dir if run_dir is not None else loaded.directory.parent))
+
+
+def load_any(run_dir: str | Path, key: str | None = None, *, progress: bool = False,
+             log: Callable[[str], None] = lambda _: None) -> AnyPlayModel:
+    """The model ``key`` of the run folder (:func:`available_models`; default: the 2018 model when
+    there is one, else the 2022 one). A folder without it raises one line naming what it has."""
+    run_dir = Path(run_dir)
+    have = available_models(run_dir)
+    if key is None:
+        key = next(iter(have), PFNN)
+    if key == PFNN:
+        return load_model(run_dir, progress=progress, log=log)
+    if key not in have:
+        raise PlayError(f"{run_dir} has no trained {key} model (it has: {', '.join(have) or 'none'}); train one with "
+                        f"`jaxstyle lpn --run {run_dir}` or `jaxstyle demo --model {key} --run {run_dir}`")
+    return load_lpn_model(run_dir, progress=progress)
 
 
 @dataclasses.dataclass
@@ -220,39 +436,54 @@ def batched_step(base: pipeline.Base, blend_bias: float = 1.5):
     return _STEPS[key][1]
 
 
+def lpn_batched_step(model: LPNPlayModel, blend_bias: float = 1.5):
+    """The 2022 model's jitted ``f(styles, states, (offsets, yaw, stand)) -> (states, frames)``:
+    ``jit(vmap(step))`` of :func:`jaxstyle.control.lpn_controller.model_step` (the network's
+    weights and statistics compiled in as constants, the runtime style an argument; the LPN step
+    reads the offsets and yaw, not the standing amount). One per model, as :func:`batched_step`."""
+    m = model.loaded.model
+    key = ("lpn", id(m.params), blend_bias)
+    if key not in _STEPS or _STEPS[key][0] is not m.params:
+        x_norm, y_norm = model.loaded.data.base.normalisers()
+        cols = (tuple(int(c) for c in end_effector_columns(model.skeleton)) if m.config.backbone == "mann" else None)
+        step = lpn_controller.model_step(m.params, m.config, loop.normaliser_arrays(x_norm),
+                                         loop.normaliser_arrays(y_norm), cols, model.num_bones, blend_bias)
+        _STEPS[key] = (m.params, jax.jit(jax.vmap(step)))
+    return _STEPS[key][1]
+
+
 class Session:
-    """A live session on a :class:`PlayModel`: characters, steering, styles, blends, recording.
+    """A live session on a :class:`PlayModel` (2018) or :class:`LPNPlayModel` (2022): characters,
+    steering, styles, blends, recording.
 
     Thread safety: the server calls every method from its own threads; the caller serialises them
     (``jaxstyle.play.server`` holds one lock around each call), so nothing here locks.
     """
 
-    def __init__(self, model: PlayModel, *, style: str | None = None, record_seconds: float = 30.0,
+    def __init__(self, model: AnyPlayModel, *, style: str | None = None, record_seconds: float = 30.0,
                  blend_bias: float = 1.5):
         self.model = model
-        base = model.base
-        self.num_joints = base.skeleton.num_joints
-        self.fps = float(base.skeleton.fps)
+        self.num_joints = model.skeleton.num_joints
+        self.fps = float(model.skeleton.fps)
         self.upm = float(model.units_per_meter)
-        self.rank = int(base.model.rank) * MAX_BLEND
-        self._step = batched_step(base, float(blend_bias))
-        rows = synthesis.style_rows(base.dataset, base.dataset.styles[0])
-        row = controller.start_row(base.dataset.inputs, model.speed, units_per_meter=self.upm, rows=rows, fps=self.fps)
-        self._start = controller.initial_state(base.dataset.inputs[row], float(base.dataset.phases[row, 0]),
-                                               self.num_joints)
+        self._step = model.batched_step(float(blend_bias))
+        self._start = model.start_state()
         self.capacity = max(1, int(round(record_seconds * self.fps)))
         self.speed = float(model.speed)
         self.characters: list[Character] = []
         self._states: RolloutState | None = None
-        self._adapters = None
+        self._runtimes = None
+        self._ratios: dict = {}  # the PFNN backbone's global-phase rate per style or blend played
         self._dirty = True
         self.frames = 0
+        if not model.styles:
+            raise PlayError(f"{model.title} of {model.run_dir} has no styles to play")
         self.add_character(style or next(iter(model.styles)))
         # run the blend's small array operations once per blend size, so the first blend the user
         # asks for costs no compilation either
-        one = next(iter(model.styles.values())).adapter
+        one = next(iter(model.styles.values()))
         for k in range(2, MAX_BLEND + 1):
-            pfnn.pad_rank(pfnn.blend_adapters(pfnn.stack_adapters([one] * k), np.full(k, 1.0 / k)), self.rank)
+            model.runtime([one] * k, np.full(k, 1.0 / k))
 
     # --- styles -------------------------------------------------------------------------------
     @property
@@ -303,15 +534,22 @@ class Session:
         return (" + ".join(f"{100 * wi:.0f}% {n}" for n, wi in zip(names, w, strict=True)),
                 " / ".join("-" if r is None else f"{r:g}" for r in rates))
 
-    def adapter_of(self, c: Character) -> dict:
-        """The character's adapter, padded to the session's fixed rank."""
+    def _playing(self, c: Character) -> tuple[list[Style], np.ndarray | None]:
         if c.blend is None:
-            adapter = self.model.styles[c.style].adapter
-        else:
-            names, w = c.blend
-            stacked = pfnn.stack_adapters([self.model.styles[n].adapter for n in names])
-            adapter = pfnn.blend_adapters(stacked, np.asarray(w))
-        return pfnn.pad_rank(adapter, self.rank)
+            return [self.model.styles[c.style]], None
+        names, w = c.blend
+        return [self.model.styles[n] for n in names], np.asarray(w)
+
+    def runtime_of(self, c: Character):
+        """The character's runtime style as the step takes it: its style's or its blend's adapter
+        padded to the session's fixed rank (2018), or FiLM vector (2022)."""
+        return self.model.runtime(*self._playing(c))
+
+    adapter_of = runtime_of  # the 2018 name
+
+    @staticmethod
+    def _key(c: Character):
+        return c.style if c.blend is None else c.blend
 
     # --- characters ---------------------------------------------------------------------------
     def add_character(self, style: str | None = None) -> int:
@@ -413,10 +651,16 @@ class Session:
         """Advance every character by one frame (one jitted call) and return what to draw."""
         t0 = time.perf_counter()
         if self._dirty:
-            self._adapters = pfnn.stack_adapters([self.adapter_of(c) for c in self.characters])
+            self._runtimes = jax.tree.map(lambda *v: jnp.stack(v), *[self.runtime_of(c) for c in self.characters])
+            if isinstance(self.model, LPNPlayModel) and self.model.loaded.model.config.backbone == "pfnn":
+                for c in self.characters:
+                    if self._key(c) not in self._ratios:
+                        self._ratios[self._key(c)] = self.model.phase_ratio(*self._playing(c))
+                ratios = [self._ratios[self._key(c)] for c in self.characters]
+                self._states = self._states._replace(phase_ratio=jnp.asarray(ratios, jnp.float32))
             self._dirty = False
         controls = self.controls()
-        self._states, out = self._step(self._adapters, self._states, (controls.offsets, controls.yaw, controls.stand))
+        self._states, out = self._step(self._runtimes, self._states, (controls.offsets, controls.yaw, controls.stand))
         out, future, origin, yaw = jax.device_get((out, self._states.future, self._states.hist_xz[:, -1],
                                                    self._states.hist_yaw[:, -1]))
         ms = 1e3 * (time.perf_counter() - t0)
@@ -428,11 +672,14 @@ class Session:
         # the predicted future (x, z in the character frame at the six samples) in the world, metres
         fx, fz = loop.rotate_xz(future[:, 0], future[:, 1], yaw[:, None])
         world = np.stack([np.asarray(fx) + origin[:, :1], np.asarray(fz) + origin[:, 1:]], axis=-1)
-        return Frame(np.asarray(out.positions) / self.upm, origin / self.upm, yaw, world / self.upm, ms)
+        # the LPN layout's bones are the skeleton's joints, then the hand end sites: draw the joints
+        positions = np.asarray(out.positions)[:, :self.num_joints]
+        return Frame(positions / self.upm, origin / self.upm, yaw, world / self.upm, ms)
 
-    def recording(self, seconds: float, character: int = 0) -> Rollout:
-        """The last ``seconds`` of ``character`` as a :class:`Rollout` (frames on the leading axis),
-        ready for :mod:`jaxstyle.output.export`."""
+    def recording(self, seconds: float, character: int = 0) -> Rollout | lpn_controller.LPNRollout:
+        """The last ``seconds`` of ``character`` as a :class:`Rollout` (2022: an
+        :class:`~jaxstyle.control.lpn_controller.LPNRollout`; frames on the leading axis), ready
+        for :mod:`jaxstyle.output.export`."""
         history = self.characters[character].history
         n = min(len(history), int(round(seconds * self.fps)))
         if n < 2:
@@ -440,17 +687,18 @@ class Session:
         return jax.tree.map(lambda *v: np.stack(v), *history[-n:])
 
 
-def save_recording(rollout: Rollout, model: PlayModel, path: str | Path, *, foot_ik: bool = True,
-                   gif: bool = True, title: str = "") -> list[Path]:
+def save_recording(rollout: Rollout | lpn_controller.LPNRollout, model: AnyPlayModel, path: str | Path, *,
+                   foot_ik: bool = True, gif: bool = True, title: str = "") -> list[Path]:
     """Write a recorded :class:`Rollout` as ``<path>.bvh`` (feet pinned while in contact with
     ``foot_ik``, :func:`jaxstyle.output.export.fix_feet`), ``<path>.npz`` and, with ``gif``,
     ``<path>.gif`` (:func:`jaxstyle.output.preview.render_gif`); returns the files."""
     from jaxstyle.output import export, preview
 
-    skeleton = model.base.skeleton
+    skeleton = model.skeleton
     files = list(export.save_rollout(path, rollout, skeleton, foot_ik=foot_ik).values())
     if gif:
-        files.append(preview.render_gif(Path(path).with_suffix(".gif"), [np.asarray(rollout.positions)],
+        positions = np.asarray(rollout.positions)[:, :skeleton.num_joints]  # the LPN layout adds the hand end sites
+        files.append(preview.render_gif(Path(path).with_suffix(".gif"), [positions],
                                         skeleton.parents, skeleton.fps, titles=[title or Path(path).stem],
                                         units_per_meter=model.units_per_meter, every=2))
     return files
