@@ -71,6 +71,39 @@ def test_teacher_forced_loop_reproduces_the_encoded_inputs(clip):
         np.testing.assert_allclose(np.asarray(frame.positions), real, atol=1e-3 * np.abs(real).max())
 
 
+def test_carried_joints_are_the_pfnn_demos_blend_in_world_space(clip):
+    """The carried joints (controller module docstring): in world space, ``s`` times the predicted
+    positions plus ``1 - s`` times the previous positions moved on by the predicted velocities
+    (the PFNN demo's ``mix(p + v, P, s)``), recomputed here with numpy from the world transforms
+    of the two character frames; ``s = 1`` is the raw prediction; standing still blends too."""
+    m, phase, x, y, t = clip
+    rng = np.random.default_rng(0)
+    J = m.num_joints
+    g = controller.PFNNLayout(J).output_groups
+    state = controller.initial_state(x[5], phase[t[5]], J)
+    state = state._replace(hist_xz=state.hist_xz + jnp.asarray([3.0, -2.0]), hist_yaw=state.hist_yaw + 0.7)
+    out = np.array(y[5], dtype=np.float64)
+    out[:3] = [4.0, 9.0, 0.3]  # a step and a visible turn
+    out[g["joint_velocity"]] += rng.normal(scale=2.0, size=3 * J)  # velocities that disagree with the positions
+
+    def world(points_Jx3, origin, yaw):
+        return rotate_yaw(points_Jx3, np.full(len(points_Jx3), yaw)) + np.array([origin[0], 0.0, origin[1]])
+
+    for s, stand in ((0.5, 0.0), (0.3, 0.0), (1.0, 0.0), (0.5, 0.6)):
+        new, frame = controller.advance(state, jnp.asarray(out, jnp.float32), J, stand, s)
+        o0, a0 = np.asarray(state.hist_xz[-1], np.float64), float(state.hist_yaw[-1])
+        o1, a1 = np.asarray(new.hist_xz[-1], np.float64), float(new.hist_yaw[-1])
+        prev = world(np.asarray(state.joint_pos, np.float64).reshape(J, 3), o0, a0)
+        pred = world(out[g["joint_position"]].reshape(J, 3), o1, a1)
+        vel = rotate_yaw(out[g["joint_velocity"]].reshape(J, 3), np.full(J, a1))
+        want = s * pred + (1 - s) * (prev + vel)
+        np.testing.assert_allclose(np.asarray(frame.positions), want, atol=1e-3 * np.abs(want).max())
+        # the carried state and the recorded outputs hold the same blended joints, in C_{t+1}
+        np.testing.assert_allclose(np.asarray(new.joint_pos), np.asarray(frame.outputs)[g["joint_position"]])
+        local = rotate_yaw(want - np.array([o1[0], 0.0, o1[1]]), np.full(J, -a1))
+        np.testing.assert_allclose(np.asarray(new.joint_pos).reshape(J, 3), local, atol=1e-3 * np.abs(local).max())
+
+
 @pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_rollout_vmaps_over_adapters_and_is_finite(clip):
     m, phase, x, y, t = clip

@@ -8,7 +8,14 @@ of :mod:`jaxstyle.data.pfnn_features`:
 * future trajectory (offsets 0 .. 50): the network's previous prediction blended with the user's
   path, the user's weight growing with the offset, ``w_k = 1 - (1 - k / 5) ** blend_bias``
   (0 for the current sample, 1 for the farthest), as in the PFNN demo's trajectory blending;
-* joint positions and velocities: the previous output, already in the new character frame.
+* joint positions and velocities: the previous frame's, already in the new character frame. The
+  positions are the PFNN demo's blend (Holden et al. 2017's runtime, ``extra_joint_smooth = 0.5``):
+  ``p_{t+1} = s P_{t+1} + (1 - s) (p_t + V_{t+1})`` of the predicted position ``P`` and the previous
+  position moved on by the predicted velocity ``V``, ``s =`` :data:`JOINT_SMOOTH`. Where the two
+  predictions disagree the carried pose is their average, which damps the autoregressive loop
+  through the joint inputs: fed its raw predicted positions (``s = 1``), the paper-size base of
+  ``experiments/quality.py`` stood at a waypoint in its Chicken style while its head rose and went
+  30 m behind it within half a second.
 
 The root then moves by the predicted velocity and turn, the phase advances by the predicted
 (non-negative) change. Everything is in file units; the user's path is given as a ground
@@ -46,6 +53,11 @@ from jaxstyle.control.loop import (  # noqa: F401
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PFNNLayout
 from jaxstyle.nn import pfnn
+
+JOINT_SMOOTH = 0.5
+"""The weight ``s`` of the predicted joint positions against the previous ones moved on by the
+predicted velocities (the PFNN demo's ``extra_joint_smooth``; 1: the raw prediction), see the
+module docstring."""
 
 
 class RolloutState(NamedTuple):
@@ -95,7 +107,8 @@ def assemble_input(state: RolloutState, controls_t: tuple[jax.Array, jax.Array],
     return jnp.concatenate([traj, state.joint_pos, state.joint_vel])
 
 
-def advance(state: RolloutState, y: jax.Array, num_joints: int, stand=0.0) -> tuple[RolloutState, Rollout]:
+def advance(state: RolloutState, y: jax.Array, num_joints: int, stand=0.0, joint_smooth=JOINT_SMOOTH
+            ) -> tuple[RolloutState, Rollout]:
     """Move the character by one de-normalised output ``y (28 + 12J,)``: the next state and the
     generated frame.
 
@@ -114,16 +127,21 @@ def advance(state: RolloutState, y: jax.Array, num_joints: int, stand=0.0) -> tu
     dphase = phase_scale * jnp.maximum(y[3], 0.0)
     new_phase = jnp.mod(state.phase + dphase, 1.0)
     g = PFNNLayout(num_joints).output_groups
-    local = y[g["joint_position"]].reshape(num_joints, 3)
+    # the previous frame's joints (in C_t) seen from C_{t+1}: the root moved by (dx, dz) and turned
+    prev = state.joint_pos.reshape(num_joints, 3)
+    px, pz = rotate_xz(prev[:, 0] - move * y[0], prev[:, 2] - move * y[1], -move * y[2])
+    carried = jnp.stack([px, prev[:, 1], pz], axis=-1) + y[g["joint_velocity"]].reshape(num_joints, 3)
+    s = jnp.asarray(joint_smooth, y.dtype)
+    local = s * y[g["joint_position"]].reshape(num_joints, 3) + (1.0 - s) * carried
     wx, wz = rotate_xz(local[:, 0], local[:, 2], new_yaw)
     positions = jnp.stack([wx + new_origin[0], local[:, 1], wz + new_origin[1]], axis=-1)
     traj = y[g["trajectory_position"].start:g["trajectory_direction"].stop].reshape(4, FUTURE_SAMPLES)
     new_state = RolloutState(jnp.concatenate([state.hist_xz[1:], new_origin[None]]),
                              jnp.concatenate([state.hist_yaw[1:], new_yaw[None]]), new_phase,
-                             y[g["joint_position"]], y[g["joint_velocity"]], traj)
-    # the recorded outputs carry the root motion and phase change actually applied, so that
-    # decode_pfnn (the BVH export) reproduces this rollout's root path exactly
-    applied = jnp.concatenate([move * y[:3], dphase[None], y[4:]])
+                             local.reshape(-1), y[g["joint_velocity"]], traj)
+    # the recorded outputs carry the root motion, phase change and joint positions actually
+    # applied, so that decode_pfnn (the BVH export) reproduces this rollout's root path exactly
+    applied = jnp.concatenate([move * y[:3], dphase[None], y[4:]]).at[g["joint_position"]].set(local.reshape(-1))
     return new_state, Rollout(positions, new_origin, new_yaw, new_phase, applied)
 
 
