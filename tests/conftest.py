@@ -14,6 +14,17 @@ import pytest
 
 from jaxstyle.data.locate import ENV_VAR, default_mocap_dir
 
+# XLA's backend optimisations off for the test run (before JAX starts in this process; the
+# xdist workers import this file first): most of the tests' time is compiling small programs once,
+# and without the LLVM optimisations that compile takes far less (tests/test_fewshot.py and
+# test_equations.py: 69 s -> 42 s on the 2-core machine) while every result is computed the same
+# way up to float rounding. Benchmarks and the command line keep XLA's default.
+# JAXSTYLE_TEST_XLA_DEFAULT=1 keeps the default optimisation in the tests too.
+_FAST_COMPILE = "--xla_backend_optimization_level=0"
+if os.environ.get("JAXSTYLE_TEST_XLA_DEFAULT") != "1" and "xla_backend_optimization_level" not in os.environ.get(
+        "XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FAST_COMPILE).strip()
+
 
 def _mocap_or_skip() -> Path:
     path = default_mocap_dir()

@@ -62,7 +62,8 @@ SCRIPT = textwrap.dedent("""
 
 
 def _run(tmp_path, *extra):
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu",
+    env = {**os.environ, "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4",
+           "JAX_PLATFORMS": "cpu",
            "PYTHONPATH": str(ROOT)}
     out = subprocess.run([sys.executable, "-c", SCRIPT, str(tmp_path / "run"), *extra], cwd=ROOT, env=env,
                          capture_output=True, text=True, timeout=900)
