@@ -78,6 +78,31 @@ def test_teacher_forced_global_phase_advances_as_the_labels(walk):
                                       - np.asarray(before.phases)), atol=1e-5)
 
 
+def test_carried_bones_blend_the_prediction_with_the_moved_on_bones(walk):
+    """``loop.JOINT_SMOOTH``: with velocities that disagree with the positions, the drawn bones
+    are ``s P + (1 - s) (p + V)`` in ``C_t`` (recomputed here with numpy, then put in the world by
+    the current ground frame), the recorded outputs hold them, and ``s = 1`` is the raw prediction."""
+    _, f = walk
+    num_bones = len(f.bones)
+    g = LPNLayout(num_bones).output_groups
+    state = lpn_controller.initial_state(f.inputs[10], f.phases[10], num_bones, f.global_phase[10], 0.8)
+    state = state._replace(hist_xz=state.hist_xz + jnp.asarray([1.5, -4.0]), hist_yaw=state.hist_yaw - 0.4)
+    y = np.array(f.outputs[10], dtype=np.float64)
+    y[g["joint_velocity"]] += np.random.default_rng(1).normal(scale=1.5, size=3 * num_bones)
+    origin, yaw = np.asarray(state.hist_xz[-1], np.float64), float(state.hist_yaw[-1])
+    now = np.asarray(state.joints, np.float64).reshape(4, num_bones, 3)[0]
+    for s in (0.5, 0.2, 1.0):
+        _, frame = lpn_controller.advance(state, jnp.asarray(y, jnp.float32), num_bones, 0.0, s)
+        local = s * y[g["joint_position"]].reshape(num_bones, 3) + (1 - s) * (now + y[g["joint_velocity"]].reshape(
+            num_bones, 3))
+        c, sn = np.cos(yaw), np.sin(yaw)
+        want = np.stack([local[:, 0] * c + local[:, 2] * sn + origin[0], local[:, 1],
+                         -local[:, 0] * sn + local[:, 2] * c + origin[1]], axis=-1)
+        np.testing.assert_allclose(np.asarray(frame.positions), want, atol=1e-3 * np.abs(want).max())
+        np.testing.assert_allclose(np.asarray(frame.outputs)[g["joint_position"]], local.reshape(-1),
+                                   atol=1e-3 * np.abs(local).max())
+
+
 def test_damped_output_moves_the_next_frame_and_the_body_rigidly(walk):
     """:func:`lpn_controller.damp_output` with ``move``: the next ground frame moves ``move`` times
     the step and turns ``move`` times the turn; the pose is the same in that frame (distances
@@ -147,6 +172,10 @@ def test_pfnn_backbone_is_evaluated_at_the_carried_global_phase(walk):
     at = style_models.model_apply(params, config, x_n, jnp.full((1, 1), f.global_phase[0]), styles[0])[0]
     away = style_models.model_apply(params, config, x_n, jnp.full((1, 1), f.global_phase[0] + 0.5), styles[0])[0]
     expect = np.asarray(at) * y_norm.std + y_norm.mean
+    # the recorded bone positions are the blend with the moved-on bones (loop.JOINT_SMOOTH)
+    jp, jv = g["joint_position"], g["joint_velocity"]
+    expect[jp] = loop.JOINT_SMOOTH * expect[jp] + (1 - loop.JOINT_SMOOTH) * (
+        np.asarray(st.joints)[:3 * num_bones] + expect[jv])
     np.testing.assert_allclose(np.asarray(one.outputs[0]), expect, rtol=1e-4, atol=1e-4 * np.abs(expect).max())
     assert np.abs(np.asarray(away - at)).max() > 1e-2  # the phase matters
     phi = np.concatenate([[float(st.global_phase)], np.asarray(one.global_phase)])

@@ -54,10 +54,7 @@ from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PFNNLayout
 from jaxstyle.nn import pfnn
 
-JOINT_SMOOTH = 0.5
-"""The weight ``s`` of the predicted joint positions against the previous ones moved on by the
-predicted velocities (the PFNN demo's ``extra_joint_smooth``; 1: the raw prediction), see the
-module docstring."""
+JOINT_SMOOTH = loop.JOINT_SMOOTH  # the weight of the predicted joints (loop.JOINT_SMOOTH, the module docstring)
 
 
 class RolloutState(NamedTuple):

@@ -60,6 +60,17 @@ final error on 8 s straight, circle and zigzag paths of the procedural ``jaxstyl
 tracker that realises a quarter of a correction needs 4 to close the error."""
 
 
+JOINT_SMOOTH = 0.5
+"""Both controllers' weight ``s`` of the predicted joint positions against the previous ones
+moved on by the predicted velocities, ``p_{t+1} = s P_{t+1} + (1 - s) (p_t + V_{t+1})``, the
+pose carried to the next frame's input, drawn and recorded (1: the raw prediction). The runtimes
+the papers reuse do this: the PFNN demo (Holden et al. 2017; Mason et al. 2018) mixes with its
+``extra_joint_smooth = 0.5``, and Starke et al.'s local-motion-phase runtime (Mason et al. 2022)
+lerps its bone positions the same way. Where the two predictions disagree the carried pose is
+their average, which damps the autoregressive loop through the joint inputs
+(:mod:`jaxstyle.control.controller`, :mod:`jaxstyle.control.lpn_controller`)."""
+
+
 class Controls(NamedTuple):
     """Per frame ``t``: the user's path ``offsets (T, 6, 2)``, the ground displacement from frame
     ``t`` to ``t + 10 k`` (k = 0 .. 5), global, and the desired facing yaw ``yaw (T, 6)`` there.

@@ -24,6 +24,9 @@ Each frame:
 * the global phase ``phi`` (cycles), the expert blend of Table 2's PFNN-backbone models (PFNN
   One-hot, PFNN Resad, PFNN FiLM: the network is evaluated at ``phi``), advances by
   :func:`global_phase_advance` (below); the LPN and MANN backbones carry it too but do not read it;
+* bone positions: the PFNN demo's and Starke et al.'s blend of the predicted positions with the
+  current ones moved on by the predicted velocities (:data:`jaxstyle.control.loop.JOINT_SMOOTH`),
+  as in the 2018 controller;
 * standing: the user's standing amount (:func:`jaxstyle.control.loop.stand_damping`, the PFNN
   demo's ``gait_stand``) damps the root's translation and turn and the phases' advance exactly as
   in the 2018 controller (:func:`jaxstyle.control.controller.advance`); with ``stand = 0`` (no
@@ -229,14 +232,23 @@ def damp_output(y: jax.Array, move, num_bones: int) -> jax.Array:
     return jnp.concatenate([ptx, ptz, dtx, dtz, joints.reshape(-1), y[g["joint_up"].stop:]])
 
 
-def advance(state: LPNState, y: jax.Array, num_bones: int, stand=0.0) -> tuple[LPNState, LPNRollout]:
+def advance(state: LPNState, y: jax.Array, num_bones: int, stand=0.0, joint_smooth=loop.JOINT_SMOOTH
+            ) -> tuple[LPNState, LPNRollout]:
     """Move the character by one de-normalised output ``y (24 + 12 B + 18,)``: the next state and
     the generated frame (see the module docstring). ``stand`` in ``[0, 1]``: how much the user asks
     to stand still (:func:`jaxstyle.control.loop.stand_damping`: the root motion is scaled by
-    ``m``, :func:`damp_output`, the local and global phases' advance by ``0.1 + 0.9 m``)."""
+    ``m``, :func:`damp_output`, the local and global phases' advance by ``0.1 + 0.9 m``).
+    ``joint_smooth``: :data:`jaxstyle.control.loop.JOINT_SMOOTH`, the carried bone positions are
+    ``s P + (1 - s) (p + V)`` of the predicted positions ``P`` and the current ones ``p`` moved on
+    by the predicted velocities ``V`` (both in ``C_t``); the recorded ``outputs`` hold them."""
     move, phase_scale = loop.stand_damping(stand)
     y = damp_output(y, move, num_bones)
     g = LPNLayout(num_bones).output_groups
+    s = jnp.asarray(joint_smooth, y.dtype)
+    now = state.joints.reshape(4, num_bones, 3)
+    predicted = y[g["joint_position"]].reshape(num_bones, 3)
+    moved_on = now[0] + y[g["joint_velocity"]].reshape(num_bones, 3)
+    y = y.at[g["joint_position"]].set((s * predicted + (1.0 - s) * moved_on).reshape(-1))
     origin, yaw = state.hist_xz[-1], state.hist_yaw[-1]
     traj = y[g["trajectory_position"].start:g["trajectory_direction"].stop]
     tx, tz, tdx, tdz = traj.reshape(4, FUTURE_SAMPLES)
