@@ -225,21 +225,27 @@ def loaded(run_dir):
     return synthesis2022.load_model(run / "lpn", cache=run / "cache")
 
 
+def _neutral(loaded):
+    """What the trained-model tests share: the model, its rows, the Neutral character, the
+    skeleton's units per metre, Neutral's rows, its own speed and the start row at that speed."""
+    model, data = loaded.model, loaded.data
+    ds = data.base
+    (char,) = synthesis2022.characters(loaded, styles=["Neutral"])
+    upm = estimate_units_per_meter(data.skeleton)
+    rows = style_rows(ds, "Neutral")
+    speed = lpn_synthesis.own_speed(ds, rows, upm)
+    return model, ds, char, upm, rows, speed, loop.start_row(ds.inputs, speed, units_per_meter=upm, rows=rows)
+
+
 @pytest.mark.slow
 def test_trained_pfnn_backbone_keeps_its_phase_near_the_data_rate(loaded):
     """Closed loop on a straight walk at the style's speed, the phase's rate fitted on the style's
     rows (:func:`lpn_controller.phase_ratio`): the global phase advances every frame at 0.5-1.5
     times the labelled walk's rate (a tiny model runs at ~0.6; the trained Table 2 PFNN FiLM of
     docs/mason2022.md at 0.8-1.05)."""
-    model, data = loaded.model, loaded.data
-    ds = data.base
+    model, ds, char, upm, rows, speed, row = _neutral(loaded)
     x_norm, y_norm = ds.normalisers()
     num_bones = (ds.inputs.shape[1] - 48) // 12
-    (char,) = synthesis2022.characters(loaded, styles=["Neutral"])
-    upm = estimate_units_per_meter(data.skeleton)
-    rows = style_rows(ds, "Neutral")
-    speed = lpn_synthesis.own_speed(ds, rows, upm)
-    row = loop.start_row(ds.inputs, speed, units_per_meter=upm, rows=rows)
     ratio = lpn_controller.phase_ratio(model.params, model.config, char.runtime, x_norm, y_norm, ds, rows)
     state = lpn_synthesis.start_state(ds, row, num_bones, ratio)
     out = lpn_controller.rollout(model.params, model.config, char.runtime, x_norm, y_norm, state,
@@ -259,15 +265,9 @@ def test_stop_and_go_stops_within_half_a_second_and_walks_again(loaded):
     """Issue 19's target with the 2022 controller: root speed below 0.1 m/s within 0.5 s of each
     stop command (the standing amount of the controls), walking again after it; without the
     standing amount the same model does not stop."""
-    model, data = loaded.model, loaded.data
-    ds = data.base
+    model, ds, char, upm, rows, speed, row = _neutral(loaded)
     x_norm, y_norm = ds.normalisers()
     num_bones = (ds.inputs.shape[1] - 48) // 12
-    (char,) = synthesis2022.characters(loaded, styles=["Neutral"])
-    upm = estimate_units_per_meter(data.skeleton)
-    rows = style_rows(ds, "Neutral")
-    speed = lpn_synthesis.own_speed(ds, rows, upm)
-    row = loop.start_row(ds.inputs, speed, units_per_meter=upm, rows=rows)
     state = lpn_synthesis.start_state(ds, row, num_bones)
     sig = paths.stop_and_go(6.0, speed, units_per_meter=upm)
     full = loop.signal_controls(sig)
