@@ -39,7 +39,7 @@ from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.output.synthesis import SynthesisResult, start_states, style_rows, write_results
+from jaxstyle.output.synthesis import SynthesisResult, stack_trees, start_states, style_rows, write_results
 
 
 class LPNCharacter(NamedTuple):
@@ -71,6 +71,19 @@ def start_state(dataset: datasets.Dataset, row: int, num_bones: int, ratio: floa
     return lpn_controller.initial_state(dataset.inputs[row], dataset.phases[row], num_bones, phase, ratio)
 
 
+def style_phase_ratio(params: dict, config: StyleModelConfig, runtime, normalisers: tuple[Normaliser, Normaliser],
+                      dataset: datasets.Dataset, style: str, *, gate_columns=None) -> float:
+    """The global-phase rate a character of ``style`` (its rows in ``dataset``) with the runtime
+    style ``runtime`` starts with: :func:`jaxstyle.control.lpn_controller.phase_ratio` on the
+    style's rows for Table 2's PFNN backbone, 1 for the LPN and MANN backbones, which do not read
+    the global phase. :func:`synthesize`, the quality benchmark and ``jaxstyle play`` use it."""
+    if config.backbone != "pfnn":
+        return 1.0
+    x_norm, y_norm = normalisers
+    return float(lpn_controller.phase_ratio(params, config, runtime, x_norm, y_norm, dataset,
+                                            style_rows(dataset, style), gate_columns=gate_columns))
+
+
 def blend_character(config: StyleModelConfig, characters: Sequence[LPNCharacter], weights: Sequence[float]
                     ) -> LPNCharacter:
     """A character in a blend of 2 or 3 styles with barycentric ``weights`` (non-negative, summing
@@ -80,17 +93,13 @@ def blend_character(config: StyleModelConfig, characters: Sequence[LPNCharacter]
     if len(characters) != len(weights) or not 2 <= len(characters) <= 3:
         raise ValueError(f"a blend takes 2 or 3 styles with one weight each, got {len(characters)} styles and "
                          f"{len(weights)} weights")
-    stacked = jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *[c.runtime for c in characters])
+    stacked = stack_trees([c.runtime for c in characters])
     runtime = style_models.blend_styles(config, stacked, jnp.asarray(weights, jnp.float32))
     w = [float(x) for x in weights]
     title = " + ".join(f"{100 * wi:.0f}% {c.label}" for wi, c in zip(w, characters, strict=True))
     label = "blend_" + "_".join(f"{c.label}{round(100 * wi)}" for wi, c in zip(w, characters, strict=True))
     first = characters[0]
     return LPNCharacter(title, label, runtime, first.dataset, first.style)
-
-
-def _stack(items):
-    return jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *items)
 
 
 def synthesize(params: dict, config: StyleModelConfig, normalisers: tuple[Normaliser, Normaliser],
@@ -125,27 +134,13 @@ def synthesize(params: dict, config: StyleModelConfig, normalisers: tuple[Normal
     if LPNLayout(num_bones).input_size != config.input_size:
         raise ValueError(f"the normalisers have {len(x_norm.mean)} inputs, the model {config.input_size}")
     gate_columns = end_effector_columns(skeleton) if config.backbone == "mann" else None
-    ratios = {}  # the PFNN backbone's global-phase rate, per (dataset, style, runtime style)
-
-    def initial(c, ds, row):
-        if config.backbone != "pfnn":
-            return start_state(ds, row, num_bones)
-        key = (id(ds), c.style, id(c.runtime))
-        if key not in ratios:
-            ratios[key] = lpn_controller.phase_ratio(params, config, c.runtime, x_norm, y_norm, ds,
-                                                     style_rows(ds, c.style), gate_columns=gate_columns)
-        return start_state(ds, row, num_bones, ratios[key])
-
-    starts, speeds = [], []
-    for c in characters:  # start_states, one character at a time: the PFNN backbone's ratio needs its style
-        (st,), (v,) = start_states([c], upm, fps, lambda ds, row, c=c: initial(c, ds, row), speed=speed,
-                                   speed_of=own_speed)
-        starts.append(st)
-        speeds.append(v)
+    starts, speeds = start_states(characters, upm, fps, lambda c, ds, row: start_state(
+        ds, row, num_bones, style_phase_ratio(params, config, c.runtime, (x_norm, y_norm), ds, c.style,
+                                              gate_columns=gate_columns)), speed=speed, speed_of=own_speed)
     pairs = [(s, p) for s in range(len(characters)) for p in path_names]
     signals = [paths.named(p, seconds, speeds[s], units_per_meter=upm, fps=fps) for s, p in pairs]
-    args = (params, config, _stack([characters[s].runtime for s, _ in pairs]), x_norm, y_norm,
-            _stack([starts[s] for s, _ in pairs]), _stack([loop.signal_controls(sig) for sig in signals]))
+    args = (params, config, stack_trees([characters[s].runtime for s, _ in pairs]), x_norm, y_norm,
+            stack_trees([starts[s] for s, _ in pairs]), stack_trees([loop.signal_controls(sig) for sig in signals]))
     jax.block_until_ready(lpn_controller.rollout_batch(*args, gate_columns=gate_columns))  # compile
     t0 = time.perf_counter()
     rollouts = jax.block_until_ready(lpn_controller.rollout_batch(*args, gate_columns=gate_columns))

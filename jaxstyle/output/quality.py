@@ -46,7 +46,7 @@ from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.nn import pfnn
 from jaxstyle.output import export, lpn_synthesis, metrics
-from jaxstyle.output.synthesis import own_speed, start_states, style_rows
+from jaxstyle.output.synthesis import own_speed, stack_trees, start_states, style_rows
 
 PROTOCOL_PATHS = ("straight", "circle", "zigzag", "stop_and_go", "speed_ramp", "waypoints")
 FOLLOW_PATHS = ("straight", "circle", "zigzag")  # the paths of the 0.3 m final-error target
@@ -81,10 +81,6 @@ def subject(character, kind: str, model: str = MODEL_2018) -> Subject:
     return Subject(character.title, kind, style, character.dataset, character.style, model)
 
 
-def _stack(items):
-    return jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *items)
-
-
 Drawn = dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]
 
 
@@ -93,20 +89,16 @@ def _drive(subjects: Sequence[Subject], skeleton: Motion, initial, rollout_batch
            ) -> tuple[list[dict], Drawn]:
     """What :func:`run` and :func:`run_lpn` share: the start states
     (:func:`jaxstyle.output.synthesis.start_states`, the style's own median speed by ``speed_of``,
-    ``initial(subject index, dataset, row)``), the path signals and controls with the
+    ``initial(subject, dataset, row)``), the path signals and controls with the
     path-following law, ONE batched rollout (``rollout_batch(which, states, controls)``, ``which``
     the subject of each rollout), then :func:`measure_rollouts`."""
     upm, fps = estimate_units_per_meter(skeleton), skeleton.fps
-    starts, speeds = [], []
-    for i, s in enumerate(subjects):
-        (state,), (speed,) = start_states([s], upm, fps, lambda ds, row, i=i: initial(i, ds, row), speed_of=speed_of)
-        starts.append(state)
-        speeds.append(speed)
+    starts, speeds = start_states(subjects, upm, fps, initial, speed_of=speed_of)
     pairs = [(i, p) for i in range(len(subjects)) for p in path_names]
     signals = [paths.named(p, seconds, speeds[i], units_per_meter=upm, fps=fps) for i, p in pairs]
     which = [i for i, _ in pairs]
-    out = rollout_batch(which, _stack([starts[i] for i in which]),
-                        _stack([loop.signal_controls(sig, follow_seconds=follow_seconds) for sig in signals]))
+    out = rollout_batch(which, stack_trees([starts[i] for i in which]),
+                        stack_trees([loop.signal_controls(sig, follow_seconds=follow_seconds) for sig in signals]))
     return measure_rollouts(subjects, pairs, signals, out, skeleton, speeds, blend_frames=blend_frames)
 
 
@@ -171,14 +163,12 @@ def run_lpn(params: dict, config, normalisers: tuple[Normaliser, Normaliser], su
     num_bones = subjects[0].dataset.inputs.shape[1] // 12 - 4  # inputs 48 + 12 B (jaxstyle.data.lpn_features)
     gate_columns = end_effector_columns(skeleton) if config.backbone == "mann" else None
 
-    def initial(i, ds, row):
-        s = subjects[i]
-        ratio = 1.0 if config.backbone != "pfnn" else lpn_controller.phase_ratio(
-            params, config, s.adapter, x_norm, y_norm, ds, style_rows(ds, s.style), gate_columns=gate_columns)
-        return lpn_synthesis.start_state(ds, row, num_bones, ratio)
+    def initial(s, ds, row):
+        return lpn_synthesis.start_state(ds, row, num_bones, lpn_synthesis.style_phase_ratio(
+            params, config, s.adapter, normalisers, ds, s.style, gate_columns=gate_columns))
 
     def rollout_batch(which, states, controls):
-        return lpn_controller.rollout_batch(params, config, _stack([subjects[i].adapter for i in which]), x_norm,
+        return lpn_controller.rollout_batch(params, config, stack_trees([subjects[i].adapter for i in which]), x_norm,
                                             y_norm, states, controls, gate_columns=gate_columns, blend_bias=blend_bias)
 
     return _drive(subjects, skeleton, initial, rollout_batch, speed_of=lpn_synthesis.own_speed,

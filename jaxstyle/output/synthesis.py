@@ -72,15 +72,17 @@ def own_speed(dataset: datasets.Dataset, rows: np.ndarray, units_per_meter: floa
     return float(np.median(np.linalg.norm(step, axis=1)) * fps / units_per_meter)
 
 
-def _stack(items):
-    return jax.tree.map(lambda *v: jnp.stack(v), *items)
+def stack_trees(items):
+    """Pytrees of the same structure stacked leaf by leaf on a new leading axis (NumPy or JAX
+    leaves; the batched rollouts' states, controls and runtime styles)."""
+    return jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *items)
 
 
 def start_states(characters: Sequence, units_per_meter: float, fps: float, initial, *,
                  speed: float | None = None, speed_of=own_speed) -> tuple[list, list[float]]:
     """Per character (anything with ``dataset`` and ``style``): its walking speed (``speed``, or its
     style's own, ``speed_of(dataset, rows, units_per_meter, fps)``) and a start state
-    ``initial(dataset, row)`` at a frame of its style moving near that speed
+    ``initial(character, dataset, row)`` at a frame of its style moving near that speed
     (:func:`jaxstyle.control.loop.start_row`). Both controllers' synthesis and the quality benchmark
     start their characters this way."""
     starts, speeds = [], []
@@ -88,7 +90,7 @@ def start_states(characters: Sequence, units_per_meter: float, fps: float, initi
         rows = style_rows(c.dataset, c.style)
         v = speed_of(c.dataset, rows, units_per_meter, fps) if speed is None else float(speed)
         row = controller.start_row(c.dataset.inputs, v, units_per_meter=units_per_meter, rows=rows, fps=fps)
-        starts.append(initial(c.dataset, row))
+        starts.append(initial(c, c.dataset, row))
         speeds.append(v)
     return starts, speeds
 
@@ -127,13 +129,14 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
     upm = estimate_units_per_meter(skeleton)
     fps = skeleton.fps
     stacked = pfnn.stack_adapters([c.adapter for c in characters])
-    starts, speeds = start_states(characters, upm, fps, lambda ds, row: controller.initial_state(
+    starts, speeds = start_states(characters, upm, fps, lambda _, ds, row: controller.initial_state(
         ds.inputs[row], float(ds.phases[row, 0]), skeleton.num_joints), speed=speed)
     pairs = [(s, p) for s in range(len(characters)) for p in path_names]
     signals = [paths.named(p, seconds, speeds[s], units_per_meter=upm, fps=fps) for s, p in pairs]
     which = np.asarray([s for s, _ in pairs])
-    args = (params, jax.tree.map(lambda v: v[which], stacked), x_norm, y_norm, _stack([starts[s] for s, _ in pairs]),
-            _stack([controller.signal_controls(sig) for sig in signals]))
+    args = (params, jax.tree.map(lambda v: v[which], stacked), x_norm, y_norm,
+            stack_trees([starts[s] for s, _ in pairs]),
+            stack_trees([controller.signal_controls(sig) for sig in signals]))
     jax.block_until_ready(controller.rollout_batch(*args))  # compile
     t0 = time.perf_counter()
     rollouts = jax.block_until_ready(controller.rollout_batch(*args))

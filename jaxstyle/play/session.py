@@ -203,7 +203,7 @@ class LPNPlayModel(NamedTuple):
         if weights is None or len(styles) == 1:
             out = styles[0].runtime
         else:
-            stacked = jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *[s.runtime for s in styles])
+            stacked = synthesis.stack_trees([s.runtime for s in styles])
             out = style_models.blend_styles(config, stacked, jnp.asarray(weights, jnp.float32))
         if config.backbone == "pfnn" and config.modulation == "resad":
             out = pfnn.pad_rank(out, int(config.rank) * MAX_BLEND)
@@ -215,14 +215,11 @@ class LPNPlayModel(NamedTuple):
         the training rows of its (heaviest) style, as :func:`jaxstyle.output.lpn_synthesis.synthesize`
         starts its characters. 1 for the LPN and MANN backbones, which do not read the global phase."""
         m = self.loaded.model
-        if m.config.backbone != "pfnn":
-            return 1.0
         name = styles[0 if weights is None else int(np.argmax(weights))].name
         data = self.loaded.data
         ds = data.base if data.new is None or name in data.base.styles else data.new
-        x_norm, y_norm = data.base.normalisers()
-        return float(lpn_controller.phase_ratio(m.params, m.config, self.runtime(styles, weights), x_norm, y_norm, ds,
-                                                synthesis.style_rows(ds, name)))
+        return lpn_synthesis.style_phase_ratio(m.params, m.config, self.runtime(styles, weights),
+                                               data.base.normalisers(), ds, name)
 
 
 AnyPlayModel = PlayModel | LPNPlayModel
@@ -651,7 +648,7 @@ class Session:
         """Advance every character by one frame (one jitted call) and return what to draw."""
         t0 = time.perf_counter()
         if self._dirty:
-            self._runtimes = jax.tree.map(lambda *v: jnp.stack(v), *[self.runtime_of(c) for c in self.characters])
+            self._runtimes = synthesis.stack_trees([self.runtime_of(c) for c in self.characters])
             if isinstance(self.model, LPNPlayModel) and self.model.loaded.model.config.backbone == "pfnn":
                 for c in self.characters:
                     if self._key(c) not in self._ratios:
