@@ -128,3 +128,11 @@ def test_lpn_dataset_global_phase_equals_the_labeller_on_the_same_frames(tmp_pat
     stale = dataclasses.replace(ds, global_phase=np.zeros(0, np.float32))  # a cache from before the field
     with pytest.raises(ValueError, match="global phases for"):
         train_lpn.style_data(stale, skeleton, backbone="pfnn")
+
+
+def test_layout_of_an_input_size_round_trips_and_refuses_other_sizes():
+    for bones in (1, 23, 25, 31):
+        assert lf.LPNLayout.of_inputs(lf.LPNLayout(bones).input_size) == lf.LPNLayout(bones)
+    for bad in (48, 47, lf.LPNLayout(25).input_size + 5, lf.LPNLayout(25).output_size):
+        with pytest.raises(ValueError, match="not an LPN input size"):
+            lf.LPNLayout.of_inputs(bad)

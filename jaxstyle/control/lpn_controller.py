@@ -64,7 +64,7 @@ from jaxstyle.control import loop
 from jaxstyle.control.loop import Controls, f32, initial_ground, normaliser_arrays, rotate_xz, trajectory_input
 from jaxstyle.data.lpn_features import NUM_PHASE_FEATURES, LPNLayout
 from jaxstyle.data.normalise import Normaliser
-from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PAST_SAMPLES
+from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
 
@@ -172,7 +172,7 @@ def phase_ratio(params: dict, config: StyleModelConfig, style, x_norm: Normalise
     else:
         gate = x_n[:, jnp.asarray(_check(config, gate_columns))]
     y = style_models.model_apply(params, config, x_n, gate, style) * ys + ym
-    omega = np.asarray(predicted_advance(y, (x_n.shape[1] - 4 * (PAST_SAMPLES + FUTURE_SAMPLES)) // 12))
+    omega = np.asarray(predicted_advance(y, LPNLayout.of_inputs(x_n.shape[1]).num_bones))
     return global_phase_ratio(dataset.global_phase[rows], omega, dataset.clip[rows], dataset.frame[rows])
 
 

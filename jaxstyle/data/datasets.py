@@ -420,7 +420,7 @@ def _pfnn_groups(input_size: int):
 
 
 def _lpn_groups(input_size: int):
-    layout = LPNLayout((input_size - 48) // 12)
+    layout = LPNLayout.of_inputs(input_size)
     out = dict(layout.output_groups)
     for name in ("local_phase", "local_phase_update", "foot_contact"):
         out.pop(name)  # per-dimension statistics for these few values

@@ -62,6 +62,14 @@ class LPNLayout:
 
     num_bones: int
 
+    @classmethod
+    def of_inputs(cls, input_size: int) -> "LPNLayout":
+        """The layout whose input row has ``input_size`` values (``48 + 12 B``)."""
+        bones, rest = divmod(int(input_size) - 4 * (PAST_SAMPLES + FUTURE_SAMPLES), 12)
+        if rest or bones < 1:
+            raise ValueError(f"{input_size} is not an LPN input size (48 + 12 x bones)")
+        return cls(bones)
+
     @property
     def joint_size(self) -> int:
         return 12 * self.num_bones

@@ -120,7 +120,7 @@ def style_data(dataset, skeleton: Motion, *, backbone: str = "lpn", styles: Sequ
     ``(N, 1)``: the dataset's ``global_phase``, :func:`jaxstyle.global_phase` of each row's frame).
     """
     styles = tuple(dataset.styles if styles is None else styles)
-    layout = LPNLayout((dataset.inputs.shape[1] - 48) // 12)
+    layout = LPNLayout.of_inputs(dataset.inputs.shape[1])
     if dataset.clips.shape[0] == 0:
         raise ValueError("the dataset has no style clips: build it with jaxstyle.data.datasets.build_lpn_dataset")
     x, y = dataset.normalised(base)

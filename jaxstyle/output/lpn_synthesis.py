@@ -130,7 +130,7 @@ def synthesize(params: dict, config: StyleModelConfig, normalisers: tuple[Normal
     x_norm, y_norm = normalisers
     upm = estimate_units_per_meter(skeleton)
     fps = skeleton.fps
-    num_bones = (len(x_norm.mean) - 48) // 12
+    num_bones = (len(x_norm.mean) - 48) // 12  # checked against the model just below
     if LPNLayout(num_bones).input_size != config.input_size:
         raise ValueError(f"the normalisers have {len(x_norm.mean)} inputs, the model {config.input_size}")
     gate_columns = end_effector_columns(skeleton) if config.backbone == "mann" else None

@@ -38,7 +38,7 @@ import numpy as np
 
 from jaxstyle.control import controller, loop, lpn_controller, paths
 from jaxstyle.data import datasets
-from jaxstyle.data.lpn_features import end_effector_columns
+from jaxstyle.data.lpn_features import LPNLayout, end_effector_columns
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter
@@ -160,7 +160,7 @@ def run_lpn(params: dict, config, normalisers: tuple[Normaliser, Normaliser], su
     :func:`jaxstyle.control.lpn_controller.phase_ratio` fits for the subject's style and runtime
     style, as :func:`jaxstyle.output.lpn_synthesis.synthesize` starts it."""
     x_norm, y_norm = normalisers
-    num_bones = subjects[0].dataset.inputs.shape[1] // 12 - 4  # inputs 48 + 12 B (jaxstyle.data.lpn_features)
+    num_bones = LPNLayout.of_inputs(subjects[0].dataset.inputs.shape[1]).num_bones
     gate_columns = end_effector_columns(skeleton) if config.backbone == "mann" else None
 
     def initial(s, ds, row):

@@ -54,7 +54,7 @@ import numpy as np
 
 from jaxstyle.control import controller, loop, lpn_controller
 from jaxstyle.control.controller import Rollout, RolloutState
-from jaxstyle.data.lpn_features import end_effector_columns
+from jaxstyle.data.lpn_features import LPNLayout, end_effector_columns
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline, selection
@@ -180,7 +180,7 @@ class LPNPlayModel(NamedTuple):
     @property
     def num_bones(self) -> int:
         """The LPN layout's bones: the skeleton's joints, then the hand end sites."""
-        return (len(self.loaded.data.base.normalisers()[0].mean) - 48) // 12
+        return LPNLayout.of_inputs(self.loaded.data.base.inputs.shape[1]).num_bones
 
     def batched_step(self, blend_bias: float = 1.5):
         return lpn_batched_step(self, blend_bias)
