@@ -536,6 +536,11 @@ class PlayServer:
     def _learn_refusal(self) -> str:
         return LEARN_2018_ONLY if PFNN in self._model_keys.values() else NO_2018_MODEL
 
+    def _check_learnable(self) -> None:
+        """Refuse to learn (before an upload is even written) while a model that cannot plays."""
+        if not self.session.model.learnable or self.learner is None:
+            raise PlayError(f"{self.session.model.title} plays: {self._learn_refusal()}")
+
     def _guarded_load(self) -> None:
         path = self._gui["run"].value.strip()
         threading.Thread(target=self.load_run, args=(path,), daemon=True).start()
@@ -595,8 +600,7 @@ class PlayServer:
     def _on_upload(self, uploaded) -> None:
         if not uploaded.name:
             return
-        if not self.session.model.learnable or self.learner is None:
-            raise PlayError(f"{self.session.model.title} plays: {self._learn_refusal()}")
+        self._check_learnable()
         folder = self.run_dir / PLAY_DIR / "uploads"
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / Path(uploaded.name).name
@@ -607,8 +611,7 @@ class PlayServer:
         """Start learning the BVH file at ``path`` in the background (progress in the page)."""
         if not str(path).strip():
             raise PlayError("give the path of a BVH file (or upload one)")
-        if not self.session.model.learnable or self.learner is None:
-            raise PlayError(f"{self.session.model.title} plays: {self._learn_refusal()}")
+        self._check_learnable()
         path = Path(str(path).strip()).expanduser()
         learn.check_clip(path, self.session.model)  # bad files are refused at once
         name = self.learner.start(path)
