@@ -260,13 +260,7 @@ def pfnn_quality(base, sweep_dir: Path, shots, chosen: dict, base_styles: Sequen
 
 def lpn_quality(loaded, base_styles: Sequence[str], sets: Sequence[str], path_names: Sequence[str], seconds: float):
     """A loaded 2022 model's characters (training styles, fine-tuned new styles; not the blend, which
-    has no capture of its own) measured by :func:`jaxstyle.output.quality.run_lpn`."""
+    has no capture of its own) measured by :func:`jaxstyle.mason2022.synthesis.measure_quality`."""
     from jaxstyle.mason2022 import synthesis as synthesis2022
-    from jaxstyle.output import quality
 
-    chars = synthesis2022.characters(loaded, styles=base_styles, new_styles=sets)
-    subjects = [quality.subject(c, "base" if i < len(base_styles) else "few-shot", loaded.model.name)
-                for i, c in enumerate(chars)]
-    model = loaded.model
-    return quality.run_lpn(model.params, model.config, loaded.data.base.normalisers(), subjects, loaded.data.skeleton,
-                           path_names=path_names, seconds=seconds)
+    return synthesis2022.measure_quality(loaded, base_styles, sets, path_names=path_names, seconds=seconds)

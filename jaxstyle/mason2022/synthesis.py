@@ -187,6 +187,21 @@ def synthesize(loaded: Loaded, chars: Sequence[LPNCharacter], directory: str | o
                                     progress=progress)
 
 
+def measure_quality(loaded: Loaded, styles: Sequence[str], new_styles: Sequence[str] = (), **kwargs):
+    """The quality benchmark's rows of a loaded model's characters (:func:`characters`: its
+    training ``styles`` as ``base``, the fine-tuned ``new_styles`` as ``few-shot``), driven and
+    measured by :func:`jaxstyle.output.quality.run_lpn` (``kwargs``: its ``path_names``,
+    ``seconds`` ...). ``jaxstyle demo --model lpn-film`` and ``experiments/quality.py`` use it."""
+    from jaxstyle.output import quality
+
+    chars = characters(loaded, styles=styles, new_styles=new_styles)
+    subjects = [quality.subject(c, "base" if i < len(styles) else "few-shot", loaded.model.name)
+                for i, c in enumerate(chars)]
+    model = loaded.model
+    return quality.run_lpn(model.params, model.config, loaded.data.base.normalisers(), subjects, loaded.data.skeleton,
+                           **kwargs)
+
+
 def rollout_summary(result: SynthesisResult, num_characters: int, num_paths: int) -> str:
     """One line: characters x paths, frames and speed of the batched rollout (as the 2018 path's)."""
     return (f"{num_characters} characters x {num_paths} paths, {result.frames:,} frames in one batched rollout: "
