@@ -1,5 +1,5 @@
-"""The motion-quality benchmark of issue 19: does generated locomotion follow the path, stop, and
-keep its feet planted as well as the capture it learnt from?
+"""The motion-quality benchmark: does generated locomotion follow the path, stop, and keep its
+feet planted as well as the capture it learnt from?
 
     python experiments/quality.py [--small] [--run runs/quality] [--no-contacts] [--lpn runs/mason2022]
 
@@ -22,12 +22,14 @@ Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output)
    waypoints, 8 s each at the style's own median speed, with the path-following law
    (:func:`jaxstyle.control.loop.follow_gains`, 0.25 s), in one batched rollout.
 5. Measures (:mod:`jaxstyle.output.quality`): skating of the network's joints, of the exported
-   BVH and after heel-and-toe contact IK; feet on floor; bone error (network, BVH); the largest
+   BVH and after foot locking (:mod:`jaxstyle.output.footlock`; the plain contact IK of the 2022
+   paper beside it for comparison); steps per second, stance fraction, slide per contact, how far
+   the lock moved a foot, how deep a foot goes below the floor; feet on floor; bone error (network, BVH); the largest
    network-to-BVH joint distance; path error mean / final / final %; heading error; time to
-   stop; jitter; ankle jerk; each beside the style's capture; the issue's targets checked.
+   stop; jitter; ankle jerk; each beside the style's capture; the targets checked (jaxstyle.output.quality.targets).
 6. Diagnosis (:func:`jaxstyle.output.quality.diagnose`) of the first base style and the first
    few-shot set.
-7. The 2022 models (issue 19 item 5): every model trained into ``--lpn`` (a model's folder, or a
+7. The 2022 models: every model trained into ``--lpn`` (a model's folder, or a
    run folder of them such as ``runs/mason2022`` of ``experiments/mason2022_table2.py``; default
    ``runs/mason2022``, skipped with a line when it holds none) is reloaded
    (:func:`jaxstyle.mason2022.synthesis.load_model`) and its training styles (and the new styles
@@ -155,7 +157,8 @@ def main() -> None:
     timing = (f"base {t_base:.0f} s, sweep {t_sweep:.0f} s, rollouts and measures {t_measure:.0f} s, "
               f"2022 models {t_lpn:.0f} s, all {time.perf_counter() - t0:.0f} s")
     lines = [f"# Motion quality ({size})", "", timing, "", *quality.table(rows), "", "## Targets", "",
-             *quality.target_summary(checks), "", "## Diagnosis", ""]
+             *quality.target_summary(checks), "", "## Foot locking against the plain contact IK (same rollouts)", "",
+             *quality.lock_comparison(rows), "", "## Diagnosis", ""]
     for d in diag:
         lines += [*quality.diagnosis_lines(d), ""]
     (run / "quality.md").write_text("\n".join(lines) + "\n")

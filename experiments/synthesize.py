@@ -1,11 +1,11 @@
 """Drive characters along user paths in a base style and two few-shot styles, then write a GIF
 per path, a BVH (and .npz) per style and path, a contact sheet, and quality figures beside those
 of real motion of each style (Mason et al. 2018 section 7.1's runtime; the 2022 paper's section
-4.4 foot-contact IK with ``--foot-ik``).
+4.4 foot-contact IK: feet locked while planted, off with ``--no-foot-lock``).
 
     python experiments/synthesize.py [--styles Elated_FW,Rushed_FW] [--base-style Neutral]
         [--paths straight,circle,zigzag,stop_and_go,speed_ramp] [--seconds 8] [--speed M_PER_S]
-        [--foot-ik] [--mp4] [--out runs/synthesis]
+        [--no-foot-lock] [--mp4] [--out runs/synthesis]
 
 It builds on ``experiments/fewshot_sweep.py`` (run it first): its base PFNN (``runs/fewshot/base``)
 and the few-shot adapters it chose (``runs/fewshot/sweep``). Every (style, path) character is
@@ -37,7 +37,8 @@ def main() -> None:
                         help=f"any of {', '.join(paths.PATHS)}")
     parser.add_argument("--seconds", type=float, default=8.0)
     parser.add_argument("--speed", type=float, help="walking speed, m/s (default: each style's own median speed)")
-    parser.add_argument("--foot-ik", action="store_true", help="pin the feet in contact in the BVH files")
+    parser.add_argument("--no-foot-lock", dest="foot_lock", action="store_false",
+                        help="write the network's feet as they are (locked while planted by default)")
     parser.add_argument("--mp4", action="store_true", help="also write MP4s (needs ffmpeg)")
     parser.add_argument("--base", type=Path, default=Path("runs/fewshot/base"))
     parser.add_argument("--sweep", type=Path, default=Path("runs/fewshot/sweep"))
@@ -52,7 +53,7 @@ def main() -> None:
         chosen, shots = pipeline.load_sweep(a.sweep, base, cache=a.cache)
         result, chars = pipeline.synthesize(base, a.sweep, shots, chosen, a.out, base_styles=[a.base_style],
                                             fewshot_sets=a.styles, blend=len(a.styles) >= 2, paths=a.paths,
-                                            seconds=a.seconds, speed=a.speed, foot_ik=a.foot_ik, mp4=a.mp4)
+                                            seconds=a.seconds, speed=a.speed, foot_lock=a.foot_lock, mp4=a.mp4)
     except pipeline.PipelineError as e:
         parser.error(f"{e} (run python experiments/fewshot_sweep.py first)")
     print("speeds (m/s): " + ", ".join(f"{n} {v:.2f}" for n, v in result.speeds.items()))

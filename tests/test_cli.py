@@ -113,7 +113,8 @@ def test_train_base_then_sweep_and_synthesize(demo_run, tiny_data, tmp_path, cap
     with open(out / "quality.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     # 8 characters x paths, then one real clip each of Neutral, Crouched and Limping
-    assert len(rows) == 8 + 3 and "foot_skating_before_ik_m_s" in rows[0]
+    assert len(rows) == 8 + 3 and "foot_skating_locked_m_s" in rows[0] and rows[0]["foot_lock"] == "True"
+    assert "--foot-ik is no longer needed" in capsys.readouterr().err  # the old flag still runs, and says so
     # a user clip as a new style
     clip = tiny_data / "Limping" / "Limping_FR.bvh"
     assert run_cli("sweep", "--run", run, "--clip", clip, "--clip-range", 0, 5, "--asymmetric", *TINY_SWEEP,

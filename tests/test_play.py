@@ -201,7 +201,7 @@ def test_recording_writes_bvh_of_the_last_seconds(model, tmp_path):
         s.step()
     rollout = s.recording(1.0)
     assert rollout.positions.shape[0] == 60
-    files = session.save_recording(rollout, model, tmp_path / "rec", foot_ik=True, gif=True)
+    files = session.save_recording(rollout, model, tmp_path / "rec", foot_lock=True, gif=True)
     assert {f.suffix for f in files} == {".bvh", ".npz", ".gif"}
     motion = read_bvh(tmp_path / "rec.bvh")
     assert motion.num_frames == 60 and motion.names == model.base.skeleton.names
@@ -354,7 +354,7 @@ def test_lpn_session_steps_like_the_controllers_step_and_switches_styles_without
     with each character's FiLM vector; a switch feeds the new vector to the next step, compiling
     nothing (the jit cache stays at one entry per character count)."""
     m = lpn_model.loaded.model
-    s = session.Session(lpn_model, style="Neutral")
+    s = session.Session(lpn_model, style="Neutral", foot_lock=False)
     s.add_character("Crouched")
     s.walk_to(2.0, 4.0)
     x_norm, y_norm = lpn_model.loaded.data.base.normalisers()

@@ -18,11 +18,12 @@ import jaxstyle as js
 from jaxstyle.cli import demo
 from jaxstyle.control import paths
 from jaxstyle.data import datasets, folders, procedural
+from jaxstyle.data.lpn_features import decode_lpn
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2022 import pipeline
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import style_models
-from jaxstyle.output import footik, metrics, quality
+from jaxstyle.output import footlock, metrics, quality
 from jaxstyle.output.synthesis import EXPORTED_FIGURES
 
 SECONDS = 3.5  # stop_and_go: 2 s walk, then the stop command; 1.5 s to stop
@@ -66,13 +67,15 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
         assert row["finite"] and row["speed_m_s"] == pytest.approx(synth.speeds[style])
         sig = paths.named(p, SECONDS, synth.speeds[style], units_per_meter=upm, fps=fps)
         with np.load(tmp_path / "bvh" / f"{style}_{p}.npz") as z:
-            net, origin, yaw, contacts = (z[k].astype(np.float64) for k in ("positions", "origin", "yaw", "contacts"))
+            net, origin, yaw, outputs = (z[k].astype(np.float64) for k in ("positions", "origin", "yaw", "outputs"))
         assert net.shape[1] > J  # the LPN's hand end sites, which the metrics leave out
         net = net[:, :J]
-        np.testing.assert_allclose(drawn[(style, p)][0], net, rtol=1e-5, atol=1e-4)
-        bvh = js.read_bvh(tmp_path / "bvh" / f"{style}_{p}.bvh")
-        bvh_pos = js.global_positions(bvh)
-        fixed = js.global_positions(footik.fix_foot_sliding(bvh, contacts, blend_frames=5, pin_toes=True))
+        # the BVH file holds the locked feet (the default); the skeleton before locking is the
+        # decoded outputs'
+        fixed = js.global_positions(js.read_bvh(tmp_path / "bvh" / f"{style}_{p}.bvh"))
+        bvh_pos = js.global_positions(decode_lpn(outputs, skeleton))
+        np.testing.assert_allclose(drawn[(style, p)][0], fixed, rtol=1e-5, atol=1e-3)  # previews draw the BVH's
+        steps = metrics.step_figures(fixed, skeleton, fps)
         err = np.linalg.norm(origin - sig.positions, axis=-1) / upm
         length = np.sum(np.linalg.norm(sig.velocity, axis=1)) / fps / upm
         stops = metrics.stop_times(origin, sig.velocity, fps, units_per_meter=upm)
@@ -81,7 +84,12 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
             return metrics.foot_skating(pos, skeleton, fps, units_per_meter=upm)
 
         want = {"foot_skating_m_s": skate(net), "foot_skating_bvh_m_s": skate(bvh_pos),
-                "foot_skating_ik_m_s": skate(fixed),
+                "foot_skating_locked_m_s": skate(fixed), "steps_per_s": steps.steps_per_s,
+                "stance_fraction": steps.stance_fraction, "slide_per_contact_m": steps.slide_per_contact_m,
+                "steps_per_s_bvh": metrics.step_figures(bvh_pos, skeleton, fps).steps_per_s,
+                "ik_foot_offset_max_m": metrics.foot_offset_max_m(bvh_pos, fixed, skeleton, units_per_meter=upm),
+                "foot_below_floor_m": metrics.foot_below_floor_m(fixed, skeleton, footlock.skeleton_floor(skeleton),
+                                                                 units_per_meter=upm),
                 "contact_fraction": metrics.motion_quality(net, skeleton, fps, units_per_meter=upm).contact_fraction,
                 "bone_error_max": metrics.bone_length_errors(net, skeleton).max(),
                 "bone_error_bvh_max": metrics.bone_length_errors(bvh_pos, skeleton).max(),
@@ -91,7 +99,7 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
                 "heading_error_deg": metrics.heading_error_deg(yaw, sig.yaw),
                 "stop_time_s": np.max(stops) if len(stops) else np.nan,
                 "jitter_m_s3": metrics.jitter(net, fps, units_per_meter=upm),
-                "ankle_jerk_ik_m_s3": metrics.foot_jerk(fixed, skeleton, fps, units_per_meter=upm)}
+                "ankle_jerk_locked_m_s3": metrics.foot_jerk(fixed, skeleton, fps, units_per_meter=upm)}
         for k, v in want.items():  # the BVH file holds 6 decimals
             np.testing.assert_allclose(row[k], v, rtol=2e-3, atol=2e-4, equal_nan=True, err_msg=f"{p}: {k}")
         assert row["bone_error_bvh_max"] < 1e-5 < row["bone_error_max"]
@@ -109,7 +117,7 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
     np.testing.assert_allclose(cap["foot_skating_m_s"], metrics.reference_quality(clip).foot_skating_m_s, rtol=1e-9)
     assert np.isnan(cap["path_error_final_m"]) and cap["kind"] == "base"
     # reported with a model column; the skating targets against that model's capture row
-    assert quality.table(rows)[2].startswith("| LPN FiLM | Crouched | capture | ")  # by model, style
+    assert quality.table(rows)[2].startswith("| LPN FiLM | Crouched | capture (Crouched_FW.bvh) | ")  # by model, style
     checks = quality.targets(rows)
     skating = [c for c in checks if c["target"].startswith("raw skating")]
     assert [c["model"] for c in skating] == ["LPN FiLM"] * 8
@@ -134,6 +142,14 @@ def test_demo_prints_the_benchmark_table_with_target_marks(loaded, tmp_path):
     text = "\n".join(said)
     assert quality.table([])[0] in said and "| LPN FiLM | Neutral | straight | " in text
     marks = [line for line in said if line.startswith("| LPN FiLM |") and line.endswith(("| pass |", "| FAIL |"))]
+    lock_marks = [line for line in marks if any(f"| {t} |" in line for t in quality.LOCK_TARGETS)]
+    assert len(lock_marks) == 2 * 4 * len(quality.LOCK_TARGETS)  # every row, every foot-locking target
+    for r in rows:  # the foot offset marks agree with the CSV
+        if r["path"] != "capture":
+            mark = "pass" if float(r["ik_foot_offset_max_m"]) <= 0.15 else "FAIL"
+            assert any(line.startswith(f"| LPN FiLM | {r['style']} | {r['path']} | foot offset <= 0.15 m |")
+                       and line.endswith(f"| {mark} |") for line in lock_marks)
+    marks = [line for line in marks if line not in lock_marks]
     assert len(marks) == 2 * 4  # 2 styles x (3 path-error targets + 1 stop)
     for r in rows:  # each mark agrees with the CSV's figure and the issue's limits
         if r["path"] in quality.FOLLOW_PATHS:

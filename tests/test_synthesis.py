@@ -330,7 +330,7 @@ def test_four_characters_follow_their_paths(trained_pfnn, tmp_path):
     from jaxstyle.output import export
 
     one = jax.tree.map(lambda v: v[1], out)
-    written = export.save_rollout(tmp_path / "circle", one, skeleton, foot_ik=True)
+    written = export.save_rollout(tmp_path / "circle", one, skeleton, foot_lock=True)
     back = js.read_bvh(written["bvh"])
     assert back.num_frames == 300 and back.names == skeleton.names
     errors = js.output.metrics.bone_length_errors(js.global_positions(back), skeleton)

@@ -106,7 +106,7 @@ def test_synthesize_drives_characters_and_blends_with_the_2018_metrics(loaded, t
     # 4 characters on one 1 s path: the shapes of the command-line test below (one compiled rollout)
     chars = [a, b, lpn_synthesis.blend_character(config, [a, b, c], [1.0, 0.0, 0.0]),
              lpn_synthesis.blend_character(config, [a, b], [0.5, 0.5])]
-    out = synthesis2022.synthesize(loaded, chars, tmp_path, paths=["straight"], seconds=1.0, foot_ik=True,
+    out = synthesis2022.synthesize(loaded, chars, tmp_path, paths=["straight"], seconds=1.0, foot_lock=True,
                                    gif=False, progress=False)
     assert out.frames == 4 * 60 and len(out.rows) == 4 + 2  # + a real clip per style
     skeleton = loaded.data.skeleton
@@ -128,7 +128,7 @@ def test_synthesize_drives_characters_and_blends_with_the_2018_metrics(loaded, t
                                path_Tx2=sig.positions)
     for k, v in q.as_row().items():
         np.testing.assert_allclose(row[k], v, rtol=1e-6, equal_nan=True, err_msg=k)
-    assert np.isfinite(row["foot_skating_after_ik_m_s"])
+    assert np.isfinite(row["foot_skating_locked_m_s"]) and row["foot_lock"]
     with open(tmp_path / "quality.csv") as f:
         assert len(list(csv.DictReader(f))) == len(out.rows)
     assert quality_table(out.rows)[2].startswith(f"| {a.title} | straight | ")

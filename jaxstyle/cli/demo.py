@@ -136,8 +136,8 @@ def report_quality(run: Run, args, measure, out: Path) -> Path:
     """Step 5: ``measure(path_names, seconds)`` (:func:`jaxstyle.output.quality.run` or
     :func:`~jaxstyle.output.quality.run_lpn` on the demo's characters) along the benchmark's target
     paths; print the benchmark's table (:func:`jaxstyle.output.quality.table`, as
-    ``experiments/quality.py`` prints it) and the path and stop targets with pass/FAIL marks
-    (:func:`jaxstyle.output.quality.target_marks`); write the rows to ``out`` (CSV)."""
+    ``experiments/quality.py`` prints it), the foot-locking targets and the path and stop targets
+    with pass/FAIL marks (:func:`jaxstyle.output.quality.target_marks`); write the rows to ``out`` (CSV)."""
     from jaxstyle.output import quality
 
     t0 = time.perf_counter()
@@ -145,8 +145,11 @@ def report_quality(run: Run, args, measure, out: Path) -> Path:
     run.say("")
     run.say(f"quality on the benchmark's target paths ({', '.join(quality.TARGET_PATHS)}; {args.synth_seconds:g} s "
             f"each at each style's own speed; {elapsed(t0)}), the measures of experiments/quality.py (skating of the "
-            "network's joints / the exported BVH / the BVH after contact IK, beside each style's capture):")
-    for line in ["", *quality.table(rows), "", *quality.target_marks(quality.targets(rows))]:
+            "network's joints / the exported BVH / the BVH after foot locking, stepping after locking, beside each "
+            "style's capture):")
+    checks = quality.targets(rows)
+    for line in ["", *quality.table(rows), "", *quality.target_marks(checks, quality.LOCK_TARGETS), "",
+                 *quality.target_marks(checks)]:
         run.say(line)
     out.parent.mkdir(parents=True, exist_ok=True)
     return quality.write_csv(rows, out)

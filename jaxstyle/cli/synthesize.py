@@ -54,7 +54,7 @@ def synthesize_and_report(run: Run, args, base, shots, chosen, base_styles, sets
     t0 = time.perf_counter()
     result, chars = pipeline.synthesize(base, run.dir / "sweep", shots, chosen, run.dir / "synthesis",
                                         base_styles=base_styles, fewshot_sets=sets, blend=blend, paths=args.paths,
-                                        seconds=args.synth_seconds, speed=args.speed, foot_ik=args.foot_ik,
+                                        seconds=args.synth_seconds, speed=args.speed, foot_lock=args.foot_lock,
                                         mp4=args.mp4, every=args.every, progress=progress(args))
     run.say(f"synthesis: {pipeline.rollout_summary(result, len(chars), len(args.paths))}; with GIF and BVH writing "
             f"{elapsed(t0)}")
@@ -81,7 +81,7 @@ def synthesize_lpn_and_report(run: Run, args, loaded, base_styles, sets, out: Pa
     t0 = time.perf_counter()
     chars = synthesis2022.characters(loaded, styles=base_styles, new_styles=sets, blend=blend)
     result = synthesis2022.synthesize(loaded, chars, out, paths=args.paths, seconds=args.synth_seconds,
-                                      speed=args.speed, foot_ik=args.foot_ik, mp4=args.mp4, every=args.every,
+                                      speed=args.speed, foot_lock=args.foot_lock, mp4=args.mp4, every=args.every,
                                       progress=progress(args))
     run.say(f"synthesis with {loaded.model.name} ({loaded.epochs} epochs, {loaded.directory}): "
             f"{synthesis2022.rollout_summary(result, len(chars), len(args.paths))}; with GIF and BVH writing "

@@ -344,7 +344,7 @@ def default_sets(chosen: dict, limit: int = 3) -> list[str]:
 def synthesize(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.Dataset | None,
                chosen: dict | None, directory: str | os.PathLike, *, base_styles: Sequence[str] = (),
                fewshot_sets: Sequence[str] = (), blend: bool = False, paths: Sequence[str] = ("circle",),
-               seconds: float = 8.0, speed: float | None = None, foot_ik: bool = False, mp4: bool = False,
+               seconds: float = 8.0, speed: float | None = None, foot_lock: bool = True, mp4: bool = False,
                every: int = 2, progress: bool = True) -> tuple[SynthesisResult, list[Character]]:
     """Base styles and few-shot sets (:func:`characters`) along ``paths`` in one batched rollout,
     written to ``directory`` (:func:`jaxstyle.output.synthesis.synthesize`: GIFs, BVH files, a
@@ -352,7 +352,7 @@ def synthesize(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
     chars = characters(base, sweep_dir, shots, chosen, base_styles=base_styles, fewshot_sets=fewshot_sets,
                        blend=blend)
     result = synthesis.synthesize(base.params, base.normalisers, chars, base.skeleton, Path(directory),
-                                  path_names=list(paths), seconds=seconds, speed=speed, foot_ik=foot_ik, mp4=mp4,
+                                  path_names=list(paths), seconds=seconds, speed=speed, foot_lock=foot_lock, mp4=mp4,
                                   every=every, contact_sheet=True, progress=progress)
     return result, chars
 

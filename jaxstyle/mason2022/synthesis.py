@@ -177,13 +177,13 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
 
 def synthesize(loaded: Loaded, chars: Sequence[LPNCharacter], directory: str | os.PathLike, *,
                paths: Sequence[str] = ("circle",), seconds: float = 8.0, speed: float | None = None,
-               foot_ik: bool = False, gif: bool = True, mp4: bool = False, every: int = 2,
+               foot_lock: bool = True, gif: bool = True, mp4: bool = False, every: int = 2,
                progress: bool = True) -> SynthesisResult:
     """``chars`` along ``paths`` in one batched rollout of the loaded model, written to ``directory``
     (:func:`jaxstyle.output.lpn_synthesis.synthesize`: GIFs, BVH files, a contact sheet, quality.csv)."""
     return lpn_synthesis.synthesize(loaded.model.params, loaded.model.config, loaded.data.base.normalisers(), chars,
                                     loaded.data.skeleton, Path(directory), path_names=list(paths), seconds=seconds,
-                                    speed=speed, foot_ik=foot_ik, gif=gif, mp4=mp4, every=every, contact_sheet=gif,
+                                    speed=speed, foot_lock=foot_lock, gif=gif, mp4=mp4, every=every, contact_sheet=gif,
                                     progress=progress)
 
 

@@ -10,10 +10,10 @@ positions, which nothing ties to the skeleton, are kept in the ``.npz``). The ch
 the origin facing +Z, as the controllers' :func:`initial_state` does; frame ``t`` of the motion is
 generated frame ``t``.
 
-Optionally the feet (heels and toes) are pinned while in contact
-(:func:`jaxstyle.output.footik.fix_foot_sliding`, the 2022 paper's post-process, section 4.4), with the
-network's predicted contact labels (the LPN's; the PFNN's when trained with the 2018 layout's
-contact outputs) or contacts labelled on the decoded motion by height. Forward kinematics of the
+By default the feet (heels and toes) are locked while planted (:func:`lock_feet`,
+:mod:`jaxstyle.output.footlock`: the 2022 paper's section 4.4 post-process), with contacts decided
+from the decoded motion and started also by the network's predicted labels (the LPN's; the PFNN's
+when trained with the 2018 layout's contact outputs). Forward kinematics of the
 exported motion is what :mod:`jaxstyle.output.quality` measures, so what a user sees in Blender is
 what is measured.
 """
@@ -29,10 +29,9 @@ from jaxstyle.control.controller import Rollout
 from jaxstyle.control.lpn_controller import LPNRollout
 from jaxstyle.data.lpn_features import decode_lpn
 from jaxstyle.data.pfnn_features import decode_pfnn, output_contacts
-from jaxstyle.labels.contacts import foot_contacts
 from jaxstyle.motion import Motion
 from jaxstyle.motion.bvh import write_bvh
-from jaxstyle.output import footik
+from jaxstyle.output import footlock
 
 
 def _check_single(rollout) -> None:
@@ -58,28 +57,29 @@ def rollout_motion(rollout: Rollout | LPNRollout, skeleton: Motion, *, fps: floa
     return motion.replace(fps=float(fps or skeleton.fps), source=None)
 
 
-def fix_feet(motion: Motion, rollout: Rollout | LPNRollout, *, blend_frames: int = 5) -> Motion:
-    """``motion`` with its heels and toes pinned while in contact
-    (:func:`jaxstyle.output.footik.fix_foot_sliding`, ``pin_toes``): the network's predicted
-    contacts when it has them (the LPN's two foot labels; the heel and toe labels of a PFNN with
-    the 2018 layout's contact outputs, :func:`jaxstyle.data.pfnn_features.output_contacts`),
-    otherwise heel and toe contacts labelled on the motion itself by height alone (within the
-    paper's 1 cm of the floor, runs of at least 0.1 s). The paper's speed test is left out there:
-    a generated foot that slides is exactly the one to pin, and it would fail it."""
-    contacts = None
+def network_contacts(rollout: Rollout | LPNRollout, num_joints: int) -> np.ndarray | None:
+    """The contact labels a rollout's network predicted: the LPN's two foot labels ``(T, 2)``, the
+    heel and toe labels ``(T, 4)`` of a PFNN with the 2018 layout's contact outputs
+    (:func:`jaxstyle.data.pfnn_features.output_contacts`), ``None`` for the paper's PFNN layout."""
     if isinstance(rollout, LPNRollout):
-        contacts = np.asarray(rollout.contacts, dtype=np.float64)
-    else:
-        contacts = output_contacts(np.asarray(rollout.outputs), motion.num_joints)
-    if contacts is None:
-        c = foot_contacts(motion, speed_threshold=None, min_duration=0.1)
-        contacts = np.concatenate([c.heel, c.toe], axis=1)
-    return footik.fix_foot_sliding(motion, contacts, blend_frames=blend_frames, pin_toes=True)
+        return np.asarray(rollout.contacts, dtype=np.float64)
+    return output_contacts(np.asarray(rollout.outputs), num_joints)
+
+
+def lock_feet(motion: Motion, rollout: Rollout | LPNRollout | None = None, *,
+              config: footlock.FootLockConfig | None = None, skeleton: Motion | None = None) -> footlock.LockedMotion:
+    """``motion`` with its feet locked while planted (:func:`jaxstyle.output.footlock.lock_motion`):
+    contacts decided from the motion itself, started also by the network's predicted labels when
+    ``rollout``'s model has them (:func:`network_contacts`); the floor is the training
+    ``skeleton``'s (a clip of it, :func:`jaxstyle.output.footlock.skeleton_floor`), else the motion's own."""
+    contacts = None if rollout is None else network_contacts(rollout, motion.num_joints)
+    floor = None if skeleton is None else footlock.skeleton_floor(skeleton)
+    return footlock.lock_motion(motion, contacts, config=config, floor_2x2=floor)
 
 
 def save_rollout(path: str | os.PathLike, rollout: Rollout | LPNRollout, skeleton: Motion, *,
-                 foot_ik: bool = False, fps: float | None = None, motion: Motion | None = None) -> dict[str, Path]:
-    """Write ``<path>.bvh`` (the decoded motion, feet pinned when ``foot_ik``; or ``motion`` when
+                 foot_lock: bool = True, fps: float | None = None, motion: Motion | None = None) -> dict[str, Path]:
+    """Write ``<path>.bvh`` (the decoded motion, feet locked with ``foot_lock``, :func:`lock_feet`; or ``motion`` when
     given, e.g. one already post-processed) and ``<path>.npz`` (the network's global joint
     ``positions (T, B, 3)``, ground ``origin (T, 2)``, ``yaw (T,)``, ``phase`` (global ``(T,)`` or
     local ``(T, 8)``), ``contacts`` (LPN), the de-normalised ``outputs``, ``fps``, and the
@@ -88,8 +88,8 @@ def save_rollout(path: str | os.PathLike, rollout: Rollout | LPNRollout, skeleto
     base.parent.mkdir(parents=True, exist_ok=True)
     if motion is None:
         motion = rollout_motion(rollout, skeleton, fps=fps)
-        if foot_ik:
-            motion = fix_feet(motion, rollout)
+        if foot_lock:
+            motion = lock_feet(motion, rollout, skeleton=skeleton).motion
     bvh_path, npz_path = base.with_suffix(".bvh"), base.with_suffix(".npz")
     write_bvh(motion, bvh_path)
     arrays = {"positions": rollout.positions, "origin": rollout.origin, "yaw": rollout.yaw,

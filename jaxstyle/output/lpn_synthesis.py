@@ -105,7 +105,7 @@ def blend_character(config: StyleModelConfig, characters: Sequence[LPNCharacter]
 def synthesize(params: dict, config: StyleModelConfig, normalisers: tuple[Normaliser, Normaliser],
                characters: Sequence[LPNCharacter], skeleton: Motion, out: str | Path, *,
                path_names: Sequence[str] = ("circle",), seconds: float = 8.0, speed: float | None = None,
-               foot_ik: bool = False, gif: bool = True, mp4: bool = False, every: int = 2,
+               foot_lock: bool = True, gif: bool = True, mp4: bool = False, every: int = 2,
                contact_sheet: bool = False, reference: bool = True, progress: bool = False) -> SynthesisResult:
     """Drive every character along every path with a 2022 style model and write the results under
     ``out``: the 2018 :func:`jaxstyle.output.synthesis.synthesize` for the 2022 models (LPN, MANN and
@@ -117,7 +117,7 @@ def synthesize(params: dict, config: StyleModelConfig, normalisers: tuple[Normal
         with them too, as in training).
       characters: :class:`LPNCharacter` s (runtime styles of one kind, e.g. all FiLM vectors).
       skeleton: a clip of the training skeleton (bone lengths, fps, units; the MANN's gating columns).
-      Other arguments as :func:`jaxstyle.output.synthesis.synthesize`; ``foot_ik`` pins the feet
+      Other arguments as :func:`jaxstyle.output.synthesis.synthesize`; ``foot_lock`` locks the feet
       with the network's own predicted contacts.
     """
     if not characters:
@@ -145,7 +145,7 @@ def synthesize(params: dict, config: StyleModelConfig, normalisers: tuple[Normal
     t0 = time.perf_counter()
     rollouts = jax.block_until_ready(lpn_controller.rollout_batch(*args, gate_columns=gate_columns))
     elapsed = time.perf_counter() - t0
-    rows, files = write_results(out, characters, pairs, signals, rollouts, skeleton, foot_ik=foot_ik, gif=gif,
+    rows, files = write_results(out, characters, pairs, signals, rollouts, skeleton, foot_lock=foot_lock, gif=gif,
                                 mp4=mp4, every=every, contact_sheet=contact_sheet, reference=reference,
                                 progress=progress)
     return SynthesisResult(rows, files, elapsed, len(pairs) * int(rollouts.positions.shape[1]),

@@ -30,6 +30,7 @@ from jaxstyle.labels.contacts import (
     FootJoints,
     estimate_units_per_meter,
     joint_contacts,
+    runs,
 )
 from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import UP_AXIS, bone_lengths, global_positions
@@ -375,3 +376,87 @@ def max_joint_difference_m(a_TxJx3: np.ndarray, b_TxJx3: np.ndarray, *, units_pe
     if a.shape != b.shape:
         raise ValueError(f"a_TxJx3 and b_TxJx3 differ in shape: {a.shape} and {b.shape}")
     return float(np.max(np.linalg.norm(a - b, axis=-1))) / units_per_meter if a.size else float("nan")
+
+
+# --- Stepping, sliding per contact and what foot locking did (jaxstyle.output.footlock) -----------------------------
+
+@dataclasses.dataclass(frozen=True)
+class StepFigures:
+    """Figures of stepping that frozen or gliding feet cannot pass, from the contact rule of
+    :func:`jaxstyle.output.footlock.contact_step` (height above the floor and horizontal speed, with
+    hysteresis) on heel (ankle) and toe joints:
+
+    ``steps_per_s``: contact onsets per second, both feet (a foot is in contact while its heel or
+    toe is); ``stance_fraction``: the fraction of frames a foot is in contact, mean of both feet
+    (a walk ~0.6, a run ~0.35; a glide or frozen feet ~1, a hover 0); ``slide_per_contact_m``:
+    the median horizontal distance a heel or toe travels during one of its contacts (NaN without
+    contacts)."""
+
+    steps_per_s: float
+    stance_fraction: float
+    slide_per_contact_m: float
+
+
+def step_figures(positions_TxJx3: np.ndarray, skeleton: Motion, fps: float, *, floor_2x2: np.ndarray | None = None
+                 ) -> StepFigures:
+    """:class:`StepFigures` of global joint positions on ``skeleton`` (file units). ``floor_2x2``:
+    planted heights ``[side, heel/toe]``, the clip's own 5th height percentiles when omitted. The
+    thresholds are :class:`jaxstyle.output.footlock.FootLockConfig`'s, in the skeleton's body size
+    (:func:`jaxstyle.labels.contacts.body_units_per_meter`)."""
+    from jaxstyle.labels.contacts import body_units_per_meter
+    from jaxstyle.output import footlock
+
+    pos = _positions(positions_TxJx3, num_joints=skeleton.num_joints)
+    _check_scale(1.0, fps)
+    feet = FootJoints.find(skeleton)
+    points = footlock.points_of(pos, feet)  # (T, 2, 2, 3)
+    floor = (np.percentile(points[..., UP_AXIS], FLOOR_PERCENTILE, axis=0) if floor_2x2 is None
+             else np.asarray(floor_2x2, dtype=np.float64))
+    contact = footlock.detect_contacts(points, units_per_meter=body_units_per_meter(skeleton, feet), fps=fps,
+                                       floor_2x2=floor)
+    foot = contact.any(axis=2)  # (T, 2)
+    # the rule decides nothing before it has seen min_on frames: those take the first decision
+    first = min(len(foot) - 1, max(1, int(round(footlock.FootLockConfig().min_on_s * fps))))
+    if first > 0:
+        foot[:first] = foot[first]
+    seconds = len(pos) / float(fps)
+    onsets = int(np.sum(foot[1:] & ~foot[:-1])) if len(foot) > 1 else 0
+    upm = estimate_units_per_meter(skeleton)
+    slides = []
+    ground = points[..., list(GROUND_AXES)]
+    for side in range(2):
+        for k in range(2):
+            starts, ends = runs(contact[:, side, k])
+            for s, e in zip(starts, ends, strict=True):
+                if e - s >= 2:
+                    step = np.linalg.norm(np.diff(ground[s:e, side, k], axis=0), axis=-1)
+                    slides.append(float(np.sum(step)) / upm)
+    return StepFigures(onsets / seconds if seconds > 0 else float("nan"),
+                       float(foot.mean()) if len(foot) else float("nan"),
+                       float(np.median(slides)) if slides else float("nan"))
+
+
+def foot_offset_max_m(before_TxJx3: np.ndarray, after_TxJx3: np.ndarray, skeleton: Motion, *,
+                      units_per_meter: float) -> float:
+    """The largest distance (m) between a foot joint (ankle or toe) after foot locking and the same
+    joint before it: how far the post-process moved a foot from where the network put it."""
+    joints = _foot_joints(skeleton)
+    a, b = _positions(before_TxJx3, "before_TxJx3"), _positions(after_TxJx3, "after_TxJx3")
+    if a.shape != b.shape:
+        raise ValueError(f"before_TxJx3 and after_TxJx3 differ in shape: {a.shape} and {b.shape}")
+    _check_scale(units_per_meter)
+    return float(np.max(np.linalg.norm(a[:, joints] - b[:, joints], axis=-1))) / units_per_meter if len(a) else 0.0
+
+
+def foot_below_floor_m(positions_TxJx3: np.ndarray, skeleton: Motion, floor_2x2: np.ndarray, *,
+                       units_per_meter: float) -> float:
+    """The deepest (m) any heel or toe goes below its planted height ``floor_2x2`` (``[side,
+    heel/toe]``, e.g. :func:`jaxstyle.output.footlock.skeleton_floor` of the training skeleton); 0
+    when none does."""
+    from jaxstyle.output import footlock
+
+    pos = _positions(positions_TxJx3, num_joints=skeleton.num_joints)
+    _check_scale(units_per_meter)
+    heights = footlock.points_of(pos, FootJoints.find(skeleton))[..., UP_AXIS]
+    depth = np.asarray(floor_2x2, dtype=np.float64)[None] - heights
+    return max(0.0, float(np.max(depth))) / units_per_meter if len(pos) else 0.0

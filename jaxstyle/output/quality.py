@@ -1,4 +1,4 @@
-"""The motion-quality benchmark of ``experiments/quality.py`` (issue 19): every character along the
+"""The motion-quality benchmark of ``experiments/quality.py``: every character along the
 six protocol paths, measured as the user sees it, beside the same figures of its style's capture.
 
 Per (character, path), from ONE batched closed-loop rollout with the path-following law of
@@ -7,16 +7,20 @@ the 2022 style models; both measured by the one function :func:`measure`):
 
 * foot skating (:func:`jaxstyle.output.metrics.foot_skating`) of the network's own joints, of the
   exported skeleton (the BVH's forward kinematics: bone lengths exact, :mod:`jaxstyle.output.export`)
-  and of the exported skeleton after contact IK (:func:`jaxstyle.output.export.fix_feet`: the
-  network's predicted heel and toe contacts when the model has the 2018 layout's contact outputs);
+  and of the exported skeleton after foot locking (:func:`jaxstyle.output.export.lock_feet`, what
+  the BVH holds: contacts from the motion, started also by the network's predicted labels);
+* stepping after locking (steps per second, stance fraction, slide per contact:
+  :func:`jaxstyle.output.metrics.step_figures`), the largest distance the lock moved a foot and
+  how deep a foot goes below the floor (:data:`LOCK_FIGURES`);
 * feet on the floor, bone error of the network's joints and of the BVH (0 by construction), and
   the largest distance between the network's joints and the BVH's;
 * path error (mean, final, final as % of the path's length), heading error, the time to stop
   after each stop command (:func:`jaxstyle.output.metrics.stop_times`), jitter and ankle jerk.
 
-:func:`capture_row` gives the same figures for a clip of the style's capture (no path: those are
-blank). Every row names its ``model`` (:data:`MODEL_2018` or the 2022 model's Table 2 name).
-:func:`targets` checks the issue's targets, :func:`table` and :func:`write_csv` report,
+:func:`capture_row` gives the same figures for a forward clip of the style's capture
+(:func:`capture_clip`; no path: those are blank). Every row names its ``model``
+(:data:`MODEL_2018` or the 2022 model's Table 2 name).
+:func:`targets` checks the targets, :func:`table` and :func:`write_csv` report,
 :func:`target_marks` lists chosen targets with pass/fail marks (``jaxstyle demo``), :func:`plot`
 draws the bars (generated vs capture). :func:`diagnose` measures where sliding and
 drift come from (teacher-forced vs closed loop, root vs planted-foot velocity, phase advance vs
@@ -30,7 +34,7 @@ import dataclasses
 import math
 import os
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -45,7 +49,7 @@ from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.nn import pfnn
-from jaxstyle.output import export, lpn_synthesis, metrics
+from jaxstyle.output import export, footlock, lpn_synthesis, metrics
 from jaxstyle.output.synthesis import own_speed, stack_trees, start_states, style_rows
 
 PROTOCOL_PATHS = ("straight", "circle", "zigzag", "stop_and_go", "speed_ramp", "waypoints")
@@ -85,7 +89,7 @@ Drawn = dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]
 
 
 def _drive(subjects: Sequence[Subject], skeleton: Motion, initial, rollout_batch, *, speed_of,
-           path_names: Sequence[str], seconds: float, follow_seconds: float | None, blend_frames: int
+           path_names: Sequence[str], seconds: float, follow_seconds: float | None
            ) -> tuple[list[dict], Drawn]:
     """What :func:`run` and :func:`run_lpn` share: the start states
     (:func:`jaxstyle.output.synthesis.start_states`, the style's own median speed by ``speed_of``,
@@ -99,24 +103,26 @@ def _drive(subjects: Sequence[Subject], skeleton: Motion, initial, rollout_batch
     which = [i for i, _ in pairs]
     out = rollout_batch(which, stack_trees([starts[i] for i in which]),
                         stack_trees([loop.signal_controls(sig, follow_seconds=follow_seconds) for sig in signals]))
-    return measure_rollouts(subjects, pairs, signals, out, skeleton, speeds, blend_frames=blend_frames)
+    return measure_rollouts(subjects, pairs, signals, out, skeleton, speeds)
 
 
 def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str]], signals: Sequence[paths.PathSignal],
-                     rollouts, skeleton: Motion, speeds: Sequence[float], *, blend_frames: int = 5
+                     rollouts, skeleton: Motion, speeds: Sequence[float]
                      ) -> tuple[list[dict], Drawn]:
     """:func:`measure` each rollout of a batch of either controller (leading axis ``len(pairs)``,
     ``pairs[k] = (subject index, path name)`` along ``signals[k]``), then one :func:`capture_row`
-    per subject. Returns the rows and, per ``(title, path)``, the network's joint positions (the
-    skeleton's joints) and the path's ideal positions (previews)."""
+    per subject. Returns the rows and, per ``(title, path)``, the joint positions of the exported
+    skeleton after foot locking (what the BVH holds; the network's joints for a diverged rollout)
+    and the path's ideal positions (previews)."""
     upm = estimate_units_per_meter(skeleton)
     out = jax.tree.map(np.asarray, rollouts)
     results, drawn = [], {}
     for k, (i, p) in enumerate(pairs):
         one = jax.tree.map(lambda v, k=k: v[k], out)
         s = subjects[i]
-        drawn[(s.title, p)] = (one.positions[:, :skeleton.num_joints], signals[k].positions)
-        row = measure(one, skeleton, signals[k], units_per_meter=upm, blend_frames=blend_frames)
+        e = exported(one, skeleton)
+        drawn[(s.title, p)] = (e.net if e.locked is None else e.locked, signals[k].positions)
+        row = measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row})
     for s in subjects:
         results.append(capture_row(s))
@@ -125,7 +131,7 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
 
 def run(params: dict, normalisers: tuple[Normaliser, Normaliser], subjects: Sequence[Subject], skeleton: Motion, *,
         path_names: Sequence[str] = PROTOCOL_PATHS, seconds: float = SECONDS,
-        follow_seconds: float | None = loop.FOLLOW_SECONDS, blend_frames: int = 5, blend_bias: float = 1.5
+        follow_seconds: float | None = loop.FOLLOW_SECONDS, blend_bias: float = 1.5
         ) -> tuple[list[dict], Drawn]:
     """Drive every subject (2018 PFNN adapters) along every path at its style's own median speed
     (one batched rollout, :func:`jaxstyle.control.controller.rollout_batch`) and :func:`measure`
@@ -141,12 +147,12 @@ def run(params: dict, normalisers: tuple[Normaliser, Normaliser], subjects: Sequ
         return controller.rollout_batch(params, adapters, x_norm, y_norm, states, controls, blend_bias=blend_bias)
 
     return _drive(subjects, skeleton, initial, rollout_batch, speed_of=own_speed, path_names=path_names,
-                  seconds=seconds, follow_seconds=follow_seconds, blend_frames=blend_frames)
+                  seconds=seconds, follow_seconds=follow_seconds)
 
 
 def run_lpn(params: dict, config, normalisers: tuple[Normaliser, Normaliser], subjects: Sequence[Subject],
             skeleton: Motion, *, path_names: Sequence[str] = PROTOCOL_PATHS, seconds: float = SECONDS,
-            follow_seconds: float | None = loop.FOLLOW_SECONDS, blend_frames: int = 5, blend_bias: float = 1.5
+            follow_seconds: float | None = loop.FOLLOW_SECONDS, blend_bias: float = 1.5
             ) -> tuple[list[dict], Drawn]:
     """:func:`run` for a trained 2022 style model (Mason, Starke & Komura 2022, section 4.4): the
     subjects' ``adapter`` is their runtime style, driven by
@@ -172,35 +178,93 @@ def run_lpn(params: dict, config, normalisers: tuple[Normaliser, Normaliser], su
                                             y_norm, states, controls, gate_columns=gate_columns, blend_bias=blend_bias)
 
     return _drive(subjects, skeleton, initial, rollout_batch, speed_of=lpn_synthesis.own_speed,
-                  path_names=path_names, seconds=seconds, follow_seconds=follow_seconds, blend_frames=blend_frames)
+                  path_names=path_names, seconds=seconds, follow_seconds=follow_seconds)
+
+
+class Exported(NamedTuple):
+    """A rollout as the user gets it: the network's joints ``net``, the exported skeleton's joints
+    before (``bvh``) and after foot locking (``locked``, what the BVH file holds), the lock's
+    :class:`jaxstyle.output.footlock.LockedMotion` (``None`` when the outputs are not finite), and
+    for comparison ``pinned``: the skeleton after the plain contact IK of the 2022 paper's section
+    4.4 (:func:`pinned_feet`)."""
+
+    net: np.ndarray
+    bvh: np.ndarray | None
+    locked: np.ndarray | None
+    lock: Any
+    pinned: np.ndarray | None = None
+
+
+def pinned_feet(motion: Motion, rollout) -> Motion:
+    """The baseline post-process: heels and toes pinned while the network's predicted contact
+    labels are on (:func:`jaxstyle.output.footik.fix_foot_sliding`, 5 blend frames), or, for a model
+    without contact outputs, while within 1 cm of the floor for at least 0.1 s; no speed test,
+    no reach limit."""
+    from jaxstyle.labels.contacts import foot_contacts
+    from jaxstyle.output import footik
+
+    contacts = export.network_contacts(rollout, motion.num_joints)
+    if contacts is None:
+        c = foot_contacts(motion, speed_threshold=None, min_duration=0.1)
+        contacts = np.concatenate([c.heel, c.toe], axis=1)
+    return footik.fix_foot_sliding(motion, contacts, blend_frames=5, pin_toes=True)
+
+
+def exported(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: Motion) -> Exported:
+    """:class:`Exported` of one character's rollout of either controller (the network's joints are
+    the skeleton's: an LPN rollout's extra hand points are left out)."""
+    net = np.asarray(rollout.positions, dtype=np.float64)[:, :skeleton.num_joints]
+    if not np.isfinite(np.asarray(rollout.outputs)).all():
+        return Exported(net, None, None, None)
+    motion = export.rollout_motion(rollout, skeleton)
+    lock = export.lock_feet(motion, rollout, skeleton=skeleton)
+    return Exported(net, global_positions(motion), global_positions(lock.motion), lock,
+                    global_positions(pinned_feet(motion, rollout)))
+
+
+LOCK_FIGURES = ("steps_per_s", "stance_fraction", "slide_per_contact_m", "steps_per_s_bvh", "ik_foot_offset_max_m",
+                "foot_below_floor_m")
+"""The stepping and foot-lock columns of :func:`measure` (``steps_per_s``, ``stance_fraction`` and
+``slide_per_contact_m`` of the locked skeleton, :func:`jaxstyle.output.metrics.step_figures`;
+``steps_per_s_bvh`` before locking)."""
 
 
 def measure(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: Motion, signal: paths.PathSignal, *,
-            units_per_meter: float, blend_frames: int = 5) -> dict:
+            units_per_meter: float, out: Exported | None = None) -> dict:
     """The figures of one character's rollout along ``signal`` (see the module docstring), of either
-    controller: the network's joints are the skeleton's (an LPN rollout's extra hand points are left
-    out), the exported skeleton is the BVH's (:func:`jaxstyle.output.export.rollout_motion` decodes
-    both models' outputs), the IK uses the network's own contacts when it predicts them."""
+    controller: the network's joints, the exported skeleton (the BVH's,
+    :func:`jaxstyle.output.export.rollout_motion` decodes both models' outputs) and the same after
+    foot locking (:func:`jaxstyle.output.export.lock_feet`, the network's own contacts starting
+    locks when it predicts them): skating of all three, stepping of the locked skeleton
+    (:data:`LOCK_FIGURES`), how far the lock moved a foot and how deep a foot goes below the
+    training skeleton's floor; and for comparison the same of the plain contact IK
+    (:func:`pinned_feet`, ``*_pinned`` columns). ``out``: :func:`exported` of the rollout, if already
+    computed."""
     upm, fps = float(units_per_meter), float(signal.fps)
-    net = np.asarray(rollout.positions, dtype=np.float64)[:, :skeleton.num_joints]
+    e = exported(rollout, skeleton) if out is None else out
+    net = e.net
     nan = float("nan")
-    row = {"foot_skating_m_s": nan, "foot_skating_bvh_m_s": nan, "foot_skating_ik_m_s": nan}
-    if not np.isfinite(np.asarray(rollout.outputs)).all():
+    row = {"foot_skating_m_s": nan, "foot_skating_bvh_m_s": nan, "foot_skating_locked_m_s": nan}
+    if e.bvh is None:
         return {**row, "finite": False}
-    motion = export.rollout_motion(rollout, skeleton)
-    bvh = global_positions(motion)
-    after = global_positions(export.fix_feet(motion, rollout, blend_frames=blend_frames))
+    bvh, after = e.bvh, e.locked
     bones = metrics.bone_length_errors(net, skeleton)
     err = np.linalg.norm(np.asarray(rollout.origin) - signal.positions, axis=-1) / upm
     length = float(np.sum(np.linalg.norm(signal.velocity, axis=1)) / fps / upm)
     stops = metrics.stop_times(rollout.origin, signal.velocity, fps, units_per_meter=upm)
     q = metrics.motion_quality(net, skeleton, fps, units_per_meter=upm)
+    steps = metrics.step_figures(after, skeleton, fps)
     return {
         "finite": True,
         "foot_skating_m_s": metrics.foot_skating(net, skeleton, fps, units_per_meter=upm),
         "foot_skating_bvh_m_s": metrics.foot_skating(bvh, skeleton, fps, units_per_meter=upm),
-        "foot_skating_ik_m_s": metrics.foot_skating(after, skeleton, fps, units_per_meter=upm),
+        "foot_skating_locked_m_s": metrics.foot_skating(after, skeleton, fps, units_per_meter=upm),
         "contact_fraction": q.contact_fraction,
+        **dataclasses.asdict(steps),
+        "steps_per_s_bvh": metrics.step_figures(bvh, skeleton, fps).steps_per_s,
+        "ik_foot_offset_max_m": metrics.foot_offset_max_m(bvh, after, skeleton, units_per_meter=upm),
+        "foot_below_floor_m": metrics.foot_below_floor_m(after, skeleton, footlock.skeleton_floor(skeleton),
+                                                         units_per_meter=upm),
         "bone_error_mean": float(np.mean(bones)), "bone_error_max": float(np.max(bones)),
         "bone_error_bvh_max": float(np.max(metrics.bone_length_errors(bvh, skeleton))),
         "joint_difference_max_m": metrics.max_joint_difference_m(net, bvh, units_per_meter=upm),
@@ -210,38 +274,58 @@ def measure(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: M
         "stop_time_s": float(np.max(stops)) if len(stops) else nan, "stop_commands": int(len(stops)),
         "jitter_m_s3": q.jitter_m_s3,
         "ankle_jerk_m_s3": metrics.foot_jerk(net, skeleton, fps, units_per_meter=upm),
-        "ankle_jerk_ik_m_s3": metrics.foot_jerk(after, skeleton, fps, units_per_meter=upm),
+        "ankle_jerk_locked_m_s3": metrics.foot_jerk(after, skeleton, fps, units_per_meter=upm),
+        **({} if e.pinned is None else {
+            "foot_skating_pinned_m_s": metrics.foot_skating(e.pinned, skeleton, fps, units_per_meter=upm),
+            "steps_per_s_pinned": metrics.step_figures(e.pinned, skeleton, fps).steps_per_s,
+            "ik_foot_offset_max_pinned_m": metrics.foot_offset_max_m(bvh, e.pinned, skeleton, units_per_meter=upm),
+            "ankle_jerk_pinned_m_s3": metrics.foot_jerk(e.pinned, skeleton, fps, units_per_meter=upm)}),
+        **{f"sliding_{k.replace(', ', '_')}": v for k, v in sliding_sources(e, skeleton, fps).items()},
     }
 
 
 def capture_clip(subject: Subject, fps: float = 60.0) -> Motion:
-    """The first clip of the subject's style (its walking clips when it has some)."""
-    spec = subject.dataset.specs[int(subject.dataset.clip[style_rows(subject.dataset, subject.style)[0]])]
-    return datasets.load_clip(spec, fps=fps)
+    """The style's capture: the first clip of its start rows
+    (:func:`jaxstyle.output.synthesis.style_rows`: a forward walk, else a forward run, of the style;
+    never a backward or sideways take while it has a forward one), as the paths move forward."""
+    return datasets.load_clip(capture_spec(subject.dataset, subject.style), fps=fps)
+
+
+def capture_spec(dataset: datasets.Dataset, style: str):
+    """The clip spec of a style's capture row (:func:`capture_clip`)."""
+    return dataset.specs[int(dataset.clip[style_rows(dataset, style)[0]])]
 
 
 def capture_row(subject: Subject) -> dict:
-    """The same figures for the style's capture (forward kinematics of the BVH; no path)."""
+    """The same figures for the style's capture (forward kinematics of the BVH; no path), naming
+    the file in ``capture_file``."""
+    spec = capture_spec(subject.dataset, subject.style)
     return {"model": subject.model, "style": subject.title, "kind": subject.kind, "path": "capture",
-            **capture_figures(capture_clip(subject))}
+            "capture_file": Path(spec.path).name, **capture_figures(datasets.load_clip(spec, fps=60.0))}
 
 
 def capture_figures(clip: Motion) -> dict:
-    """:func:`measure`'s figures of real motion (its skeleton is its BVH: the network, BVH and IK
-    columns are the same; no path, so the path figures are NaN)."""
+    """:func:`measure`'s figures of real motion (its skeleton is its BVH: the network, BVH and
+    locked columns are the same, the lock moved nothing; the floor is its own; no path, so the
+    path figures are NaN)."""
     upm, fps = estimate_units_per_meter(clip), clip.fps
     pos = global_positions(clip)
     q = metrics.motion_quality(pos, clip, fps, units_per_meter=upm)
     skate = q.foot_skating_m_s
     jerk = metrics.foot_jerk(pos, clip, fps, units_per_meter=upm)
+    steps = metrics.step_figures(pos, clip, fps)
     nan = float("nan")
     return {"speed_m_s": nan, "finite": True,
-            "foot_skating_m_s": skate, "foot_skating_bvh_m_s": skate, "foot_skating_ik_m_s": skate,
-            "contact_fraction": q.contact_fraction, "bone_error_mean": q.bone_error_mean,
+            "foot_skating_m_s": skate, "foot_skating_bvh_m_s": skate, "foot_skating_locked_m_s": skate,
+            "contact_fraction": q.contact_fraction, **dataclasses.asdict(steps), "steps_per_s_bvh": steps.steps_per_s,
+            "ik_foot_offset_max_m": 0.0,
+            "foot_below_floor_m": metrics.foot_below_floor_m(pos, clip, footlock.skeleton_floor(clip),
+                                                             units_per_meter=upm),
+            "bone_error_mean": q.bone_error_mean,
             "bone_error_max": q.bone_error_max, "bone_error_bvh_max": q.bone_error_max, "joint_difference_max_m": 0.0,
             "path_error_mean_m": nan, "path_error_final_m": nan, "path_error_final_pct": nan,
             "heading_error_deg": nan, "stop_time_s": nan, "jitter_m_s3": q.jitter_m_s3, "ankle_jerk_m_s3": jerk,
-            "ankle_jerk_ik_m_s3": jerk}
+            "ankle_jerk_locked_m_s3": jerk}
 
 
 def _model(r: dict) -> str:
@@ -253,11 +337,21 @@ def _capture_of(rows: list[dict]) -> dict[tuple[str, str], dict]:
     return {(_model(r), r["style"]): r for r in rows if r["path"] == "capture"}
 
 
+LOCK_TARGETS = ("locked skating <= capture + 0.03", "foot offset <= 0.15 m", "foot below floor <= 0.01 m",
+                "steps/s within 25% of capture", "stance fraction within 0.15 of capture",
+                "locked ankle jerk <= 1.5x capture")
+"""The foot-locking targets :func:`targets` checks (their names), beside :data:`PATH_TARGETS`."""
+
+
 def targets(rows: list[dict]) -> list[dict]:
-    """One entry per (target, character, path) of the issue: ``{"target", "model", "style", "path",
-    "value", "limit", "met"}``; skating targets against the style's capture (1.5x for base styles, 2x for
-    few-shot; after IK the capture's + 0.03 m/s, ankle jerk at most 1.5x the capture's), final path
-    error <= 0.3 m on straight, circle and zigzag, stop within 0.5 s, BVH bone error 0."""
+    """One entry per (target, character, path): ``{"target", "model", "style", "path", "value",
+    "limit", "met"}``. Against the style's capture: raw skating (1.5x for base styles, 2x for
+    few-shot) and :data:`LOCK_TARGETS` (skating after locking at most the capture's + 0.03 m/s,
+    ``steps_per_s`` within 25% and ``stance_fraction`` within 0.15 of the capture's, ankle jerk
+    after locking at most 1.5x; the value of the two "within" targets is the difference from the
+    capture); on every row: no foot moved more than 0.15 m by the lock, none more than 1 cm below
+    the floor; final path error <= 0.3 m on straight, circle and zigzag, stop within 0.5 s, BVH bone
+    error 0."""
     cap = _capture_of(rows)
     out = []
 
@@ -266,6 +360,7 @@ def targets(rows: list[dict]) -> list[dict]:
         out.append({"target": name, "model": _model(r), "style": r["style"], "path": r["path"], "value": value,
                     "limit": limit, "met": met})
 
+    nan = math.nan
     for r in rows:
         if r["path"] == "capture":
             continue
@@ -273,8 +368,13 @@ def targets(rows: list[dict]) -> list[dict]:
         if c is not None:
             factor = 1.5 if r["kind"] == "base" else 2.0
             add(f"raw skating <= {factor:g}x capture", r, r["foot_skating_m_s"], factor * c["foot_skating_m_s"])
-            add("IK skating <= capture + 0.03", r, r["foot_skating_ik_m_s"], c["foot_skating_m_s"] + 0.03)
-            add("IK ankle jerk <= 1.5x capture", r, r["ankle_jerk_ik_m_s3"], 1.5 * c["ankle_jerk_m_s3"])
+            add(LOCK_TARGETS[0], r, r["foot_skating_locked_m_s"], c["foot_skating_m_s"] + 0.03)
+            steps, ref = r.get("steps_per_s", nan), c.get("steps_per_s", nan)
+            add(LOCK_TARGETS[3], r, abs(steps - ref) / ref if ref > 0 else nan, 0.25)
+            add(LOCK_TARGETS[4], r, abs(r.get("stance_fraction", nan) - c.get("stance_fraction", nan)), 0.15)
+            add(LOCK_TARGETS[5], r, r["ankle_jerk_locked_m_s3"], 1.5 * c["ankle_jerk_m_s3"])
+        add(LOCK_TARGETS[1], r, r.get("ik_foot_offset_max_m", nan), 0.15)
+        add(LOCK_TARGETS[2], r, r.get("foot_below_floor_m", nan), 0.01)
         if r["path"] in FOLLOW_PATHS:
             add("final path error <= 0.3 m", r, r["path_error_final_m"], 0.3)
         if r["path"] == "stop_and_go" and r.get("stop_commands", 1) != 0:  # 0: a path too short to stop on
@@ -314,22 +414,27 @@ def _f(v, digits: int = 2) -> str:
 
 def table(rows: list[dict]) -> list[str]:
     """The benchmark's markdown table: per model (in order of appearance) and style, its capture
-    row, then one row per path."""
-    head = ("| model | style | path | skating m/s net / BVH / IK | feet on floor | bone error net max / BVH | "
-            "joint diff m | path error mean / final m (final %) | heading deg | stop s | jitter m/s^3 | "
-            "ankle jerk net / IK m/s^3 |")
-    lines = [head, "|" + "---|" * 12]
+    row (naming the capture's file), then one row per path."""
+    head = ("| model | style | path | skating m/s net / BVH / locked | steps/s locked (BVH) | stance | "
+            "slide/contact m | foot offset m | below floor m | bone error net max / BVH | "
+            "path error mean / final m (final %) | heading deg | stop s | jitter m/s^3 | "
+            "ankle jerk net / locked m/s^3 |")
+    lines = [head, "|" + "---|" * 15]
     order = {m: i for i, m in enumerate(dict.fromkeys(_model(r) for r in rows))}
     for r in sorted(rows, key=lambda r: (order[_model(r)], r["style"], r["path"] != "capture")):
+        g = r.get
+        path = f"capture ({r['capture_file']})" if r["path"] == "capture" and g("capture_file") else r["path"]
         lines.append(
-            f"| {_model(r)} | {r['style']} | {r['path']} | {_f(r['foot_skating_m_s'])} / "
-            f"{_f(r['foot_skating_bvh_m_s'])} / "
-            f"{_f(r['foot_skating_ik_m_s'])} | {_f(r.get('contact_fraction'))} | "
-            f"{100 * r.get('bone_error_max', math.nan):.1f}% / {100 * r.get('bone_error_bvh_max', math.nan):.1g}%"
-            f" | {_f(r.get('joint_difference_max_m'))} | {_f(r.get('path_error_mean_m'))} / "
-            f"{_f(r.get('path_error_final_m'))} ({_f(r.get('path_error_final_pct'), 1)}%) | "
-            f"{_f(r.get('heading_error_deg'), 1)} | {_f(r.get('stop_time_s'))} | {_f(r.get('jitter_m_s3'), 0)} | "
-            f"{_f(r.get('ankle_jerk_m_s3'), 0)} / {_f(r.get('ankle_jerk_ik_m_s3'), 0)} |")
+            f"| {_model(r)} | {r['style']} | {path} | {_f(r['foot_skating_m_s'])} / "
+            f"{_f(r['foot_skating_bvh_m_s'])} / {_f(g('foot_skating_locked_m_s'))} | "
+            f"{_f(g('steps_per_s'))} ({_f(g('steps_per_s_bvh'))}) | {_f(g('stance_fraction'))} | "
+            f"{_f(g('slide_per_contact_m'), 3)} | {_f(g('ik_foot_offset_max_m'), 3)} | "
+            f"{_f(g('foot_below_floor_m'), 3)} | "
+            f"{100 * g('bone_error_max', math.nan):.1f}% / {100 * g('bone_error_bvh_max', math.nan):.1g}%"
+            f" | {_f(g('path_error_mean_m'))} / "
+            f"{_f(g('path_error_final_m'))} ({_f(g('path_error_final_pct'), 1)}%) | "
+            f"{_f(g('heading_error_deg'), 1)} | {_f(g('stop_time_s'))} | {_f(g('jitter_m_s3'), 0)} | "
+            f"{_f(g('ankle_jerk_m_s3'), 0)} / {_f(g('ankle_jerk_locked_m_s3'), 0)} |")
     return lines
 
 
@@ -344,9 +449,10 @@ def write_csv(rows: list[dict], path: str | os.PathLike) -> Path:
     return path
 
 
-PLOTTED = (("foot_skating_m_s", "skating, network joints (m/s)"), ("foot_skating_ik_m_s", "skating after IK (m/s)"),
-           ("contact_fraction", "feet on floor"), ("jitter_m_s3", "jitter (m/s^3)"),
-           ("ankle_jerk_ik_m_s3", "ankle jerk after IK (m/s^3)"))
+PLOTTED = (("foot_skating_m_s", "skating, network joints (m/s)"),
+           ("foot_skating_locked_m_s", "skating after foot locking (m/s)"), ("steps_per_s", "steps/s after locking"),
+           ("stance_fraction", "stance fraction"), ("jitter_m_s3", "jitter (m/s^3)"),
+           ("ankle_jerk_locked_m_s3", "ankle jerk after locking (m/s^3)"))
 
 
 def plot(rows: list[dict], path: str | os.PathLike) -> Path:
@@ -520,4 +626,79 @@ def diagnosis_lines(d: dict) -> list[str]:
     lines += [f"| {k} | {e:.2f} | {sk:.3f} |" for k, (e, sk) in d["blending"].items()]
     lines += ["", "| output group | std (m, rad or cycles) | teacher-forced RMSE / std |", "|---|---|---|"]
     lines += [f"| {k} | {std:.4f} | {r:.2f} |" for k, (std, r) in d["normalisation"].items()]
+    return lines
+
+
+SLIDING_SOURCES = ("held", "easing", "free, slow", "free, fast")
+"""Where the skating left after foot locking comes from (:func:`sliding_sources`)."""
+
+
+def sliding_sources(e: Exported, skeleton: Motion, fps: float) -> dict[str, float]:
+    """Split the skating of the locked skeleton (:func:`jaxstyle.output.metrics.foot_skating`: the
+    horizontal travel of heels and toes over frame steps they spend within 1 cm of their floor) by
+    what the lock was doing with that point: ``held`` (locked in both frames), ``easing`` (free,
+    its offset from a release or hand-over still decaying, over 1 mm), ``free, slow`` (free, the
+    network's point slower than the touch-down speed) and ``free, fast`` (free, the network's point
+    moving along the floor faster than a contact may start). Returns each share of the total
+    travel (summing to 1; NaN without such steps)."""
+    from jaxstyle.labels.contacts import body_units_per_meter
+
+    feet = FootJoints.find(skeleton)
+    locked_pts = footlock.points_of(e.locked, feet)  # (T, 2, 2, 3)
+    net_pts = footlock.points_of(e.bvh, feet)
+    h = locked_pts[..., 1]
+    on = h <= np.percentile(h, 5, axis=0) + metrics.TOLERANCE_M * estimate_units_per_meter(skeleton)
+    planted = on[1:] & on[:-1]
+    travel = np.linalg.norm(np.diff(locked_pts[..., [0, 2]], axis=0), axis=-1)
+    held = e.lock.frames.locked[1:] & e.lock.frames.locked[:-1]
+    drawn = np.stack([e.lock.frames.ankle, e.lock.frames.toe], axis=2)
+    easing = np.linalg.norm(drawn - net_pts, axis=-1)[1:] > 0.001 * body_units_per_meter(skeleton, feet)
+    speed = np.linalg.norm(np.diff(net_pts[..., [0, 2]], axis=0), axis=-1) * fps / body_units_per_meter(skeleton, feet)
+    fast = speed >= footlock.FootLockConfig().speed_on_m_s
+    parts = {"held": held, "easing": ~held & easing, "free, slow": ~held & ~easing & ~fast,
+             "free, fast": ~held & ~easing & fast}
+    total = float(np.sum(travel[planted]))
+    return {k: float(np.sum(travel[planted & m])) / total if total > 0 else float("nan") for k, m in parts.items()}
+
+
+def lock_comparison(rows: list[dict]) -> list[str]:
+    """Markdown lines comparing, on the same rollouts, the plain contact IK (:func:`pinned_feet`)
+    with foot locking: per model, how many (character, path) rows meet each foot target after
+    each, the medians, and where the skating left after locking comes from (median shares of
+    :func:`sliding_sources`)."""
+    cap = _capture_of(rows)
+    lines = ["| model | post-process | skating <= capture + 0.03 | steps/s within 25% | foot offset <= 0.15 m | "
+             "ankle jerk <= 1.5x capture | median skating m/s | median foot offset m | median ankle jerk m/s^3 |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for model in dict.fromkeys(_model(r) for r in rows):
+        mine = [r for r in rows if _model(r) == model and r["path"] != "capture" and r.get("finite", True)
+                and (model, r["style"]) in cap]
+        if not mine:
+            continue
+        for name, skate, steps, offset, jerk in (
+                ("none (BVH)", "foot_skating_bvh_m_s", "steps_per_s_bvh", None, "ankle_jerk_m_s3"),
+                ("contact IK (pinned)", "foot_skating_pinned_m_s", "steps_per_s_pinned", "ik_foot_offset_max_pinned_m",
+                 "ankle_jerk_pinned_m_s3"),
+                ("foot locking", "foot_skating_locked_m_s", "steps_per_s", "ik_foot_offset_max_m",
+                 "ankle_jerk_locked_m_s3")):
+            c = [cap[(model, r["style"])] for r in mine]
+            sk = [r.get(skate, math.nan) <= k["foot_skating_m_s"] + 0.03 for r, k in zip(mine, c, strict=True)]
+            st = [abs(r.get(steps, math.nan) - k["steps_per_s"]) <= 0.25 * k["steps_per_s"]
+                  for r, k in zip(mine, c, strict=True)]
+            off = [r.get(offset, math.nan) <= 0.15 for r in mine] if offset else [True] * len(mine)
+            jk = [r.get(jerk, math.nan) <= 1.5 * k["ankle_jerk_m_s3"] for r, k in zip(mine, c, strict=True)]
+            med = [_f(float(np.nanmedian([r.get(key, math.nan) for r in mine])), d) if key else "0"
+                   for key, d in ((skate, 3), (offset, 3), (jerk, 0))]
+            n = len(mine)
+            lines.append(f"| {model} | {name} | {sum(sk)} / {n} | {sum(st)} / {n} | {sum(off)} / {n} | "
+                         f"{sum(jk)} / {n} | {med[0]} | {med[1]} | {med[2]} |")
+    lines += ["", "Where the skating left after locking comes from (median share of the travel of heels and toes "
+              "within 1 cm of the floor, :func:`jaxstyle.output.quality.sliding_sources`):", "",
+              "| model | " + " | ".join(SLIDING_SOURCES) + " |", "|---|" + "---|" * len(SLIDING_SOURCES)]
+    for model in dict.fromkeys(_model(r) for r in rows):
+        mine = [r for r in rows if _model(r) == model and r["path"] != "capture" and "sliding_held" in r]
+        if mine:
+            shares = [_f(float(np.nanmedian([r[f"sliding_{k.replace(', ', '_')}"] for r in mine])))
+                      for k in SLIDING_SOURCES]
+            lines.append(f"| {model} | " + " | ".join(shares) + " |")
     return lines

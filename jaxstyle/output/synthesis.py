@@ -4,10 +4,11 @@ The runtime of Mason et al. 2018 section 7.1 (the PFNN with a style's residual a
 loop) for several (style, path) characters at once: every character is generated in ONE batched,
 jitted ``lax.scan`` (:func:`jaxstyle.control.controller.rollout_batch`, base weights broadcast), each
 starting from a real pose of its own style chosen to match the requested speed. Then, per path, a
-GIF with the styles side by side (:mod:`jaxstyle.output.preview`), per (style, path) a BVH (feet pinned
-with the 2022 paper's section 4.4 IK when ``foot_ik``) and an ``.npz`` (:mod:`jaxstyle.output.export`),
-and a table of :mod:`jaxstyle.output.metrics` figures beside those of real motion of each style: of the
-network's own joints, and of the exported skeleton (the BVH's, before and after contact IK) by the
+GIF of the exported skeletons side by side (:mod:`jaxstyle.output.preview`), per (style, path) a BVH
+(feet locked while planted, :mod:`jaxstyle.output.footlock`, unless ``foot_lock=False``) and an
+``.npz`` (:mod:`jaxstyle.output.export`), and a table of :mod:`jaxstyle.output.metrics` figures beside
+those of real motion of each style: of the network's own joints, and of the exported skeleton (the
+BVH's, before and after foot locking) by the
 quality benchmark's :func:`jaxstyle.output.quality.measure`, so what a user sees in Blender is measured.
 
 Used by ``jaxstyle synthesize`` / ``jaxstyle demo`` (:mod:`jaxstyle.cli`).
@@ -57,13 +58,22 @@ class SynthesisResult:
     speeds: dict[str, float]
 
 
-def style_rows(dataset: datasets.Dataset, style: str, gait: str = "FW") -> np.ndarray:
-    """Training rows of ``style``, only those of its ``gait`` clips when it has some."""
+FORWARD_GAITS = ("FW", "FR")
+"""The gaits a character starts from and takes its own speed from, in order of preference: a
+forward walk, else a forward run (the paths move forward)."""
+
+
+def style_rows(dataset: datasets.Dataset, style: str, gaits: Sequence[str] = FORWARD_GAITS) -> np.ndarray:
+    """Training rows of ``style``, only those of its clips of the first of ``gaits`` it has (all its
+    rows when it has none of them)."""
     rows = dataset.rows_of_style(style, "train")
     if len(rows) == 0:
         rows = dataset.rows_of_style(style)
-    same = np.array([dataset.specs[c].gait == gait for c in dataset.clip[rows]], dtype=bool)
-    return rows[same] if same.any() else rows
+    clip_gaits = np.array([dataset.specs[c].gait for c in dataset.clip[rows]])
+    for gait in gaits:
+        if (clip_gaits == gait).any():
+            return rows[clip_gaits == gait]
+    return rows
 
 
 def own_speed(dataset: datasets.Dataset, rows: np.ndarray, units_per_meter: float, fps: float = 60.0) -> float:
@@ -97,7 +107,7 @@ def start_states(characters: Sequence, units_per_meter: float, fps: float, initi
 
 def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], characters: Sequence[Character],
                skeleton: Motion, out: str | Path, *, path_names: Sequence[str] = ("circle",), seconds: float = 8.0,
-               speed: float | None = None, foot_ik: bool = False, gif: bool = True, mp4: bool = False,
+               speed: float | None = None, foot_lock: bool = True, gif: bool = True, mp4: bool = False,
                every: int = 2, contact_sheet: bool = False, reference: bool = True,
                progress: bool = False) -> SynthesisResult:
     """Drive every character along every path and write the results under ``out``.
@@ -109,7 +119,8 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
       skeleton: a clip of the training skeleton (bone lengths, fps, units).
       path_names: any of :data:`jaxstyle.control.paths.PATHS`; ``seconds`` long each.
       speed: m/s for every character; ``None``: each walks at its style's own median speed.
-      foot_ik: pin the feet in contact in the BVH files; ``gif``/``mp4``: write animations
+      foot_lock: lock the feet while planted (:mod:`jaxstyle.output.footlock`) in the BVH files and
+        the animations (drawn from the exported skeleton); ``gif``/``mp4``: write animations
         (``mp4`` needs ffmpeg); ``every``: draw every n-th frame of the animations;
         ``contact_sheet``: a PNG strip of 6 frames of the first path.
       reference: add the quality figures of one real clip per style to the table.
@@ -142,7 +153,7 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
     rollouts = jax.block_until_ready(controller.rollout_batch(*args))
     elapsed = time.perf_counter() - t0
 
-    rows, files = write_results(out, characters, pairs, signals, rollouts, skeleton, foot_ik=foot_ik, gif=gif,
+    rows, files = write_results(out, characters, pairs, signals, rollouts, skeleton, foot_lock=foot_lock, gif=gif,
                                 mp4=mp4, every=every, contact_sheet=contact_sheet, reference=reference,
                                 progress=progress)
     return SynthesisResult(rows, files, elapsed, len(pairs) * int(rollouts.positions.shape[1]),
@@ -150,12 +161,13 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
 
 
 def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[int, str]], signals: Sequence,
-                  rollouts, skeleton: Motion, *, foot_ik: bool = False, gif: bool = True, mp4: bool = False,
+                  rollouts, skeleton: Motion, *, foot_lock: bool = True, gif: bool = True, mp4: bool = False,
                   every: int = 2, contact_sheet: bool = False, reference: bool = True,
                   progress: bool = False) -> tuple[list[dict], list[Path]]:
     """What both papers' syntheses write, from a batched rollout of either controller (a
     :class:`jaxstyle.control.controller.Rollout` or a :class:`jaxstyle.control.lpn_controller.LPNRollout`,
-    leading axis ``len(pairs)``): per path a GIF (and MP4, contact sheet), per (character, path) the
+    leading axis ``len(pairs)``): per path a GIF (and MP4, contact sheet) of the exported skeleton
+    (after foot locking with ``foot_lock``: what the BVH files hold), per (character, path) the
     :mod:`jaxstyle.output.metrics` row, the BVH and ``.npz``, the real clips' rows, ``quality.csv``.
 
     ``characters``: anything with ``title``, ``label``, ``dataset`` and ``style`` (:class:`Character`,
@@ -165,9 +177,9 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
     functions for both models: :func:`jaxstyle.output.metrics.motion_quality` of the network's joints
     (the row's first columns, path error of the root joint's ground point) and the benchmark's
     figures of the exported skeleton (:func:`jaxstyle.output.quality.measure`, :data:`EXPORTED_FIGURES`:
-    skating of the BVH before and after contact IK, its bone error, the largest network-to-BVH
-    joint distance, heading error, time to stop, ankle jerk). Returns the quality rows and the
-    files written."""
+    skating of the BVH before and after foot locking, stepping after it, how far the lock moved a
+    foot, how deep a foot goes below the floor, its bone error, the largest network-to-BVH joint
+    distance, heading error, time to stop, ankle jerk). Returns the quality rows and the files written."""
     from jaxstyle.output import quality  # the benchmark builds on this module (start states)
 
     out = Path(out)
@@ -178,9 +190,15 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
     out.mkdir(parents=True, exist_ok=True)
     files, rows = [], []
     titles = [c.title for c in characters]
+    ones = [jax.tree.map(lambda v, k=k: np.asarray(v[k]), rollouts) for k in range(len(pairs))]
+    shown = [quality.exported(one, skeleton) for one in ones]
+
+    def drawn(e):
+        return e.net if e.bvh is None else (e.locked if foot_lock else e.bvh)
+
     for p in path_names:
         idx = [k for k, (_, q) in enumerate(pairs) if q == p]
-        chars = [np.asarray(rollouts.positions[k][:, :joints]) for k in idx]
+        chars = [drawn(shown[k]) for k in idx]
         path_xz = [signals[k].positions for k in idx]
         kwargs = dict(titles=titles, paths=path_xz, units_per_meter=upm, every=every, progress=progress)
         if gif:
@@ -191,19 +209,15 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
             files.append(preview.contact_sheet(out / "contact_sheet.png", chars, skeleton.parents, frames=6,
                                                titles=titles, paths=path_xz, units_per_meter=upm, fps=fps))
     for k, (s, p) in enumerate(pairs):
-        one = jax.tree.map(lambda v, k=k: v[k], rollouts)
+        one, e = ones[k], shown[k]
         c = characters[s]
         q = metrics.motion_quality(np.asarray(one.positions)[:, :joints], skeleton, fps, units_per_meter=upm,
                                    path_Tx2=signals[k].positions)
-        row = {"style": c.title, "path": p, **q.as_row()}
-        measured = quality.measure(one, skeleton, signals[k], units_per_meter=upm)
+        row = {"style": c.title, "path": p, "foot_lock": bool(foot_lock), **q.as_row()}
+        measured = quality.measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         row.update({key: measured.get(key, float("nan")) for key in EXPORTED_FIGURES})
-        if np.isfinite(np.asarray(one.outputs)).all():
-            motion = export.rollout_motion(one, skeleton)
-            if foot_ik:
-                motion = export.fix_feet(motion, one)
-                row["foot_skating_before_ik_m_s"] = row["foot_skating_bvh_m_s"]
-                row["foot_skating_after_ik_m_s"] = row["foot_skating_ik_m_s"]
+        if e.lock is not None:
+            motion = e.lock.motion if foot_lock else export.rollout_motion(one, skeleton)
             files += export.save_rollout(out / "bvh" / f"{c.label}_{p}", one, skeleton, motion=motion).values()
         rows.append(row)
     if reference:
@@ -213,7 +227,7 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
             if key in seen:
                 continue
             seen.add(key)
-            spec = c.dataset.specs[int(c.dataset.clip[style_rows(c.dataset, c.style)[0]])]
+            spec = quality.capture_spec(c.dataset, c.style)
             clip = datasets.load_clip(spec, fps=fps)
             q = metrics.reference_quality(clip, units_per_meter=upm)
             real = quality.capture_figures(clip)
@@ -223,10 +237,12 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
     return rows, files
 
 
-EXPORTED_FIGURES = ("foot_skating_bvh_m_s", "foot_skating_ik_m_s", "bone_error_bvh_max", "joint_difference_max_m",
-                    "heading_error_deg", "stop_time_s", "ankle_jerk_m_s3", "ankle_jerk_ik_m_s3")
+EXPORTED_FIGURES = ("foot_skating_bvh_m_s", "foot_skating_locked_m_s", "steps_per_s", "stance_fraction",
+                    "slide_per_contact_m", "steps_per_s_bvh", "ik_foot_offset_max_m", "foot_below_floor_m",
+                    "bone_error_bvh_max", "joint_difference_max_m", "heading_error_deg", "stop_time_s",
+                    "ankle_jerk_m_s3", "ankle_jerk_locked_m_s3")
 """The columns :func:`write_results` adds from :func:`jaxstyle.output.quality.measure`; the real
-clips' rows have the skating and bone figures of their own skeleton there."""
+clips' rows have the figures of their own skeleton there."""
 
 
 def write_quality(rows: list[dict], path: Path) -> Path:
@@ -245,18 +261,20 @@ def _f(v, digits: int = 2) -> str:
 
 def quality_table(rows: list[dict]) -> list[str]:
     """Markdown lines of the main quality figures: skating of the network's own joints, of the
-    exported BVH's skeleton and of that skeleton after contact IK (the BVH files hold it with
-    ``foot_ik``), feet on floor, bone error of the network's joints and of the BVH, the largest
-    network-to-BVH joint distance, path error, time to stop, jitter (:func:`write_results`)."""
-    lines = ["| style | path | skating m/s network / BVH / BVH + IK | feet on floor | bone error network mean / max "
-             "/ BVH max | joint diff m | path error mean / final m | stop s | jitter m/s^3 |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    exported BVH's skeleton and of that skeleton after foot locking (what the BVH files hold by
+    default), steps per second and stance fraction after locking, how far the lock moved a foot,
+    bone error of the network's joints and of the BVH, path error, time to stop, jitter
+    (:func:`write_results`)."""
+    lines = ["| style | path | skating m/s network / BVH / locked | steps/s | stance | foot offset m "
+             "| bone error network mean / max / BVH max | path error mean / final m | stop s | jitter m/s^3 |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         g = r.get
         lines.append(f"| {r['style']} | {r['path']} | {_f(g('foot_skating_m_s'))} / {_f(g('foot_skating_bvh_m_s'))} / "
-                     f"{_f(g('foot_skating_ik_m_s'))} | {_f(g('contact_fraction'))} "
+                     f"{_f(g('foot_skating_locked_m_s'))} | {_f(g('steps_per_s'))} | {_f(g('stance_fraction'))} "
+                     f"| {_f(g('ik_foot_offset_max_m'), 3)} "
                      f"| {_f(100 * r['bone_error_mean'], 1)}% / {_f(100 * r['bone_error_max'], 0)}% / "
-                     f"{_f(100 * float(g('bone_error_bvh_max', 'nan')), 0)}% | {_f(g('joint_difference_max_m'))} "
+                     f"{_f(100 * float(g('bone_error_bvh_max', 'nan')), 0)}% "
                      f"| {_f(g('path_error_mean_m'))} / {_f(g('path_error_final_m'))} | {_f(g('stop_time_s'))} "
                      f"| {_f(g('jitter_m_s3'), 0)} |")
     return lines

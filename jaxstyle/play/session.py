@@ -60,7 +60,7 @@ from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline, selection
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn, style_models
-from jaxstyle.output import lpn_synthesis, synthesis
+from jaxstyle.output import footlock, lpn_synthesis, synthesis
 
 MAX_BLEND = 3
 STAND_EASE = 0.1  # per frame, the share of the gap to the asked standing amount closed (``Session.controls``)
@@ -449,6 +449,27 @@ def lpn_batched_step(model: LPNPlayModel, blend_bias: float = 1.5):
     return _STEPS[key][1]
 
 
+_LOCKS: dict = {}
+
+
+def _lock_program(skeleton):
+    """The foot lock's parameters for ``skeleton`` (floor, units, frame rate) and the jitted
+    ``f(params, states, positions (C, J, 3), labels (C, 2, 2)) -> (states, positions)`` that locks
+    every character's feet for one frame (``jit(vmap(footlock.position_step))``), compiled once per
+    skeleton."""
+    key = (skeleton.names, float(skeleton.fps))
+    if key not in _LOCKS:
+        rig = footlock.leg_rig(skeleton)
+        params = footlock.params_for(skeleton)
+
+        def one(p, state, pos, labels):
+            state, out, _ = footlock.position_step(p, rig, state, pos, labels)
+            return state, out
+
+        _LOCKS[key] = (params, jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0))))
+    return _LOCKS[key]
+
+
 class Session:
     """A live session on a :class:`PlayModel` (2018) or :class:`LPNPlayModel` (2022): characters,
     steering, styles, blends, recording.
@@ -458,7 +479,7 @@ class Session:
     """
 
     def __init__(self, model: AnyPlayModel, *, style: str | None = None, record_seconds: float = 30.0,
-                 blend_bias: float = 1.5):
+                 blend_bias: float = 1.5, foot_lock: bool = True):
         self.model = model
         self.num_joints = model.skeleton.num_joints
         self.fps = float(model.skeleton.fps)
@@ -473,6 +494,9 @@ class Session:
         self._ratios: dict = {}  # the PFNN backbone's global-phase rate per style or blend played
         self._dirty = True
         self.frames = 0
+        self.foot_lock = bool(foot_lock)
+        self._lock = _lock_program(model.skeleton)
+        self._lock_states = None
         if not model.styles:
             raise PlayError(f"{model.title} of {model.run_dir} has no styles to play")
         self.add_character(style or next(iter(model.styles)))
@@ -660,7 +684,6 @@ class Session:
         self._states, out = self._step(self._runtimes, self._states, (controls.offsets, controls.yaw, controls.stand))
         out, future, origin, yaw = jax.device_get((out, self._states.future, self._states.hist_xz[:, -1],
                                                    self._states.hist_yaw[:, -1]))
-        ms = 1e3 * (time.perf_counter() - t0)
         for i, c in enumerate(self.characters):
             c.history.append(jax.tree.map(lambda v, i=i: v[i], out))
             if len(c.history) > self.capacity:
@@ -671,7 +694,24 @@ class Session:
         world = np.stack([np.asarray(fx) + origin[:, :1], np.asarray(fz) + origin[:, 1:]], axis=-1)
         # the LPN layout's bones are the skeleton's joints, then the hand end sites: draw the joints
         positions = np.asarray(out.positions)[:, :self.num_joints]
+        if self.foot_lock:  # feet locked while planted, frame by frame (jaxstyle.output.footlock)
+            params, program = self._lock
+            if self._lock_states is None or len(self._lock_states.started) != len(positions):
+                self._lock_states = jax.vmap(lambda _: footlock.init_state())(jnp.arange(len(positions)))
+            self._lock_states, locked = program(params, self._lock_states, positions, self._labels(out))
+            positions = np.asarray(locked)
+        ms = 1e3 * (time.perf_counter() - t0)
         return Frame(positions / self.upm, origin / self.upm, yaw, world / self.upm, ms)
+
+    def _labels(self, out) -> np.ndarray:
+        """``(C, 2, 2)`` contact labels per character and point: the network's (LPN foot labels, the
+        2018 layout's heel and toe outputs), zeros when it predicts none."""
+        from jaxstyle.output import export
+
+        labels = export.network_contacts(out, self.num_joints)  # characters on the leading axis
+        if labels is None:
+            return np.zeros((len(self.characters), 2, 2), np.float32)
+        return footlock.labels_per_point(labels)
 
     def recording(self, seconds: float, character: int = 0) -> Rollout | lpn_controller.LPNRollout:
         """The last ``seconds`` of ``character`` as a :class:`Rollout` (2022: an
@@ -685,17 +725,20 @@ class Session:
 
 
 def save_recording(rollout: Rollout | lpn_controller.LPNRollout, model: AnyPlayModel, path: str | Path, *,
-                   foot_ik: bool = True, gif: bool = True, title: str = "") -> list[Path]:
-    """Write a recorded :class:`Rollout` as ``<path>.bvh`` (feet pinned while in contact with
-    ``foot_ik``, :func:`jaxstyle.output.export.fix_feet`), ``<path>.npz`` and, with ``gif``,
-    ``<path>.gif`` (:func:`jaxstyle.output.preview.render_gif`); returns the files."""
+                   foot_lock: bool = True, gif: bool = True, title: str = "") -> list[Path]:
+    """Write a recorded :class:`Rollout` as ``<path>.bvh`` (feet locked while planted with
+    ``foot_lock``, :func:`jaxstyle.output.export.lock_feet`), ``<path>.npz`` and, with ``gif``,
+    ``<path>.gif`` of the exported skeleton (:func:`jaxstyle.output.preview.render_gif`); returns the files."""
+    from jaxstyle.motion.kinematics import global_positions
     from jaxstyle.output import export, preview
 
     skeleton = model.skeleton
-    files = list(export.save_rollout(path, rollout, skeleton, foot_ik=foot_ik).values())
-    if gif:
-        positions = np.asarray(rollout.positions)[:, :skeleton.num_joints]  # the LPN layout adds the hand end sites
-        files.append(preview.render_gif(Path(path).with_suffix(".gif"), [positions],
+    motion = export.rollout_motion(rollout, skeleton)
+    if foot_lock:
+        motion = export.lock_feet(motion, rollout, skeleton=skeleton).motion
+    files = list(export.save_rollout(path, rollout, skeleton, motion=motion).values())
+    if gif:  # the exported skeleton, as the BVH holds it
+        files.append(preview.render_gif(Path(path).with_suffix(".gif"), [global_positions(motion)],
                                         skeleton.parents, skeleton.fps, titles=[title or Path(path).stem],
                                         units_per_meter=model.units_per_meter, every=2))
     return files
