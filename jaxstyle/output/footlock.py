@@ -80,7 +80,7 @@ class FootLockConfig:
     min_off_s: float = 0.1
     leash_m: float = 0.12
     relock_fraction: float = 0.25
-    max_offset_m: float = 0.14
+    max_offset_m: float = 0.13
     halflife_s: float = 0.1
     max_correction_speed_m_s: float = 1.5
     reach_slack_m: float = 0.0
@@ -310,8 +310,6 @@ def lock_step(params: LockParams, state: LockState, net_2x2x3, labels_2x2, hip_2
     fresh = ((src == 0) & start[:, :1]) | ((src == 1) & start[:, 1:])
     velocity = jnp.where(fresh[..., None], 0.0, velocity + _target_velocity(old_src, net_velocity)
                          - _target_velocity(src, net_velocity))
-    size = _norm(offset)
-    offset = offset * jnp.minimum(1.0, params.max_offset / size)[..., None]
     # a toe held alone is the foot's pivot: the drawn ankle (still easing in) is put back at one
     # foot length from it, so the easing never drags the held toe; the correction joins the
     # ankle's offset, so it eases out too when the toe lets go
@@ -321,7 +319,18 @@ def lock_step(params: LockParams, state: LockState, net_2x2x3, labels_2x2, hip_2
     arm = out[:, 0] - toe_at
     rolled = toe_at + arm * (_norm(net[:, 0] - net[:, 1]) / _norm(arm))[:, None]
     offset = offset.at[:, 0].add(jnp.where(pivot, rolled - out[:, 0], 0.0))
+    # no point is ever drawn more than max_offset from the network's (lock and easing together)
+    moved = target + offset
+    offset = moved * jnp.minimum(1.0, params.max_offset / _norm(moved))[..., None] - target
     out = net + target + offset
+    # a toe nothing holds stays near the network's foot direction from the drawn ankle (what it
+    # still has to ease back is at most 0.3 foot lengths), so a foot never turns round
+    foot = net[:, 1] - net[:, 0]
+    bend = out[:, 1] - out[:, 0] - foot
+    limit = 0.3 * _norm(foot)
+    bent = out[:, 0] + foot + bend * jnp.minimum(1.0, limit / _norm(bend))[:, None]
+    out = out.at[:, 1].set(jnp.where(locked[:, 1:], out[:, 1], bent))
+    offset = offset.at[:, 1].set(out[:, 1] - net[:, 1] - target[:, 1])
     out = out.at[..., UP_AXIS].set(jnp.maximum(out[..., UP_AXIS], params.floor_2x2))
     new_state = LockState(contact, run, rest, locked, lock, offset, velocity, net, jnp.asarray(True))
     return new_state, LockFrame(out[:, 0], out[:, 1], contact, locked)

@@ -195,6 +195,18 @@ class Exported(NamedTuple):
     pinned: np.ndarray | None = None
 
 
+def raised_to_floor(positions_TxJx3: np.ndarray, skeleton: Motion) -> np.ndarray:
+    """The positions with every heel and toe below the training skeleton's floor
+    (:func:`jaxstyle.output.footlock.skeleton_floor`) raised onto it, nothing else changed: what
+    the floor alone does to the skating figure (feet that glide through the floor glide on it)."""
+    out = np.array(positions_TxJx3, dtype=np.float64, copy=True)
+    feet, floor = FootJoints.find(skeleton), footlock.skeleton_floor(skeleton)
+    for side in range(2):
+        for k, j in enumerate((feet.ankles[side], feet.toes[side])):
+            out[:, j, 1] = np.maximum(out[:, j, 1], floor[side, k])
+    return out
+
+
 def pinned_feet(motion: Motion, rollout) -> Motion:
     """The baseline post-process: heels and toes pinned while the network's predicted contact
     labels are on (:func:`jaxstyle.output.footik.fix_foot_sliding`, 5 blend frames), or, for a model
@@ -274,6 +286,9 @@ def measure(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: M
         "stop_time_s": float(np.max(stops)) if len(stops) else nan, "stop_commands": int(len(stops)),
         "jitter_m_s3": q.jitter_m_s3,
         "ankle_jerk_m_s3": metrics.foot_jerk(net, skeleton, fps, units_per_meter=upm),
+        "foot_skating_floor_m_s": metrics.foot_skating(raised_to_floor(bvh, skeleton), skeleton, fps,
+                                                       units_per_meter=upm),
+        "ankle_jerk_bvh_m_s3": metrics.foot_jerk(bvh, skeleton, fps, units_per_meter=upm),
         "ankle_jerk_locked_m_s3": metrics.foot_jerk(after, skeleton, fps, units_per_meter=upm),
         **({} if e.pinned is None else {
             "foot_skating_pinned_m_s": metrics.foot_skating(e.pinned, skeleton, fps, units_per_meter=upm),
@@ -325,7 +340,7 @@ def capture_figures(clip: Motion) -> dict:
             "bone_error_max": q.bone_error_max, "bone_error_bvh_max": q.bone_error_max, "joint_difference_max_m": 0.0,
             "path_error_mean_m": nan, "path_error_final_m": nan, "path_error_final_pct": nan,
             "heading_error_deg": nan, "stop_time_s": nan, "jitter_m_s3": q.jitter_m_s3, "ankle_jerk_m_s3": jerk,
-            "ankle_jerk_locked_m_s3": jerk}
+            "ankle_jerk_bvh_m_s3": jerk, "ankle_jerk_locked_m_s3": jerk}
 
 
 def _model(r: dict) -> str:
@@ -397,7 +412,8 @@ def target_summary(checks: list[dict]) -> list[str]:
 
 def target_marks(checks: list[dict], names: Sequence[str] = PATH_TARGETS) -> list[str]:
     """Markdown lines: every check of the targets ``names`` (default the path and stop targets)
-    with its value, its limit and a pass/FAIL mark, then one line counting them."""
+    with its value, its limit and a pass/FAIL mark, then one line counting them (and each target's
+    count when there are several)."""
     mine = [c for c in checks if c["target"] in names]
     lines = ["| model | style | path | target | value | limit | |", "|---|---|---|---|---|---|---|"]
     lines += [f"| {c.get('model', MODEL_2018)} | {c['style']} | {c['path']} | {c['target']} | {_f(c['value'], 2)} | "
@@ -405,7 +421,10 @@ def target_marks(checks: list[dict], names: Sequence[str] = PATH_TARGETS) -> lis
     met = sum(c["met"] for c in mine)
     blank = sum(not np.isfinite(c["value"]) for c in mine)
     note = f" ({blank} n/a: never stopped before the path moved on or ended, or a diverged rollout)" if blank else ""
-    return lines + ["", f"{', '.join(names)}: {met} of {len(mine)} met{note}"]
+    each = [f"{n} {sum(c['met'] for c in mine if c['target'] == n)}/{sum(c['target'] == n for c in mine)}"
+            for n in names if any(c["target"] == n for c in mine)]
+    detail = f" ({'; '.join(each)})" if len(each) > 1 else ""
+    return lines + ["", f"{', '.join(names)}: {met} of {len(mine)} met{note}{detail}"]
 
 
 def _f(v, digits: int = 2) -> str:
@@ -676,22 +695,28 @@ def lock_comparison(rows: list[dict]) -> list[str]:
         if not mine:
             continue
         for name, skate, steps, offset, jerk in (
-                ("none (BVH)", "foot_skating_bvh_m_s", "steps_per_s_bvh", None, "ankle_jerk_m_s3"),
+                ("none (BVH)", "foot_skating_bvh_m_s", "steps_per_s_bvh", None, "ankle_jerk_bvh_m_s3"),
+                ("feet raised to the floor only", "foot_skating_floor_m_s", None, None, None),
                 ("contact IK (pinned)", "foot_skating_pinned_m_s", "steps_per_s_pinned", "ik_foot_offset_max_pinned_m",
                  "ankle_jerk_pinned_m_s3"),
                 ("foot locking", "foot_skating_locked_m_s", "steps_per_s", "ik_foot_offset_max_m",
                  "ankle_jerk_locked_m_s3")):
             c = [cap[(model, r["style"])] for r in mine]
-            sk = [r.get(skate, math.nan) <= k["foot_skating_m_s"] + 0.03 for r, k in zip(mine, c, strict=True)]
-            st = [abs(r.get(steps, math.nan) - k["steps_per_s"]) <= 0.25 * k["steps_per_s"]
-                  for r, k in zip(mine, c, strict=True)]
-            off = [r.get(offset, math.nan) <= 0.15 for r in mine] if offset else [True] * len(mine)
-            jk = [r.get(jerk, math.nan) <= 1.5 * k["ankle_jerk_m_s3"] for r, k in zip(mine, c, strict=True)]
-            med = [_f(float(np.nanmedian([r.get(key, math.nan) for r in mine])), d) if key else "0"
-                   for key, d in ((skate, 3), (offset, 3), (jerk, 0))]
             n = len(mine)
-            lines.append(f"| {model} | {name} | {sum(sk)} / {n} | {sum(st)} / {n} | {sum(off)} / {n} | "
-                         f"{sum(jk)} / {n} | {med[0]} | {med[1]} | {med[2]} |")
+
+            def met(key, ok, mine=mine, c=c, n=n):
+                if key is None:
+                    return ""
+                return f"{sum(ok(r.get(key, math.nan), k) for r, k in zip(mine, c, strict=True))} / {n}"
+
+            def med(key, digits, mine=mine):
+                return "" if key is None else _f(float(np.nanmedian([r.get(key, math.nan) for r in mine])), digits)
+
+            cells = [met(skate, lambda v, k: v <= k["foot_skating_m_s"] + 0.03),
+                     met(steps, lambda v, k: abs(v - k["steps_per_s"]) <= 0.25 * k["steps_per_s"]),
+                     met(offset, lambda v, k: v <= 0.15), met(jerk, lambda v, k: v <= 1.5 * k["ankle_jerk_m_s3"]),
+                     med(skate, 3), med(offset, 3), med(jerk, 0)]
+            lines.append(f"| {model} | {name} | " + " | ".join(cells) + " |")
     lines += ["", "Where the skating left after locking comes from (median share of the travel of heels and toes "
               "within 1 cm of the floor, :func:`jaxstyle.output.quality.sliding_sources`):", "",
               "| model | " + " | ".join(SLIDING_SOURCES) + " |", "|---|" + "---|" * len(SLIDING_SOURCES)]
