@@ -354,7 +354,8 @@ def stop_times(origin_Tx2: np.ndarray, path_velocity_Tx2: np.ndarray, fps: float
                threshold_m_s: float = 0.1, window_s: float = 1.0 / 6.0) -> np.ndarray:
     """Seconds from each stop command (the path's velocity falls to zero after moving) until the
     root's ground speed, averaged over ``window_s``, falls below ``threshold_m_s``; NaN where it
-    never does before the path moves again (or ends). The issue's target: within 0.5 s."""
+    never does before the path moves again (or ends). The benchmark's target
+    (:func:`jaxstyle.output.quality.targets`): within 0.5 s."""
     v = np.linalg.norm(np.asarray(path_velocity_Tx2, dtype=np.float64), axis=1)
     moving = v > 1e-9
     stops = np.flatnonzero(moving[:-1] & ~moving[1:]) + 1
