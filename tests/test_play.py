@@ -125,8 +125,9 @@ def test_direction_steering_and_keys():
 # --- the live step -----------------------------------------------------------------------------
 
 def test_batched_step_matches_step_fn_per_character(model):
-    """The session's one jitted call for all characters == ``controller.step_fn`` per character."""
-    s = session.Session(model, style="Neutral")
+    """The session's one jitted call for all characters == ``controller.step_fn`` per character
+    (feet as the network put them; the locked feet are the next test's)."""
+    s = session.Session(model, style="Neutral", foot_lock=False)
     s.add_character("Crouched")
     s.walk_to(2.0, 4.0)
     single = controller.step_fn(model.base.params, None, *model.base.normalisers, s.num_joints)
@@ -142,6 +143,31 @@ def test_batched_step_matches_step_fn_per_character(model):
                                        rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(s.origin(), np.stack([np.asarray(st.hist_xz[-1]) for st in states]) /
                                model.units_per_meter, atol=1e-5)
+
+
+def test_live_foot_locking_equals_the_batched_lock_of_the_same_frames(model):
+    """Two characters drawn with their feet locked frame by frame (the default) == the unlocked
+    session's frames locked afterwards in one scan (``footlock.lock_positions``) with the
+    network's own contact labels: the live path is the batched one, per character."""
+    from jaxstyle.output import export, footlock
+
+    # this untrained model's feet hover and dart about: contact thresholds wide enough to lock them
+    config = footlock.FootLockConfig(height_on_m=0.5, height_off_m=0.6, speed_on_m_s=3.0, label_speed_on_m_s=3.0,
+                                     speed_off_m_s=4.0)
+    frames = {}
+    for lock in (True, False):
+        s = session.Session(model, style="Neutral", foot_lock=lock, foot_lock_config=config)
+        s.add_character("Crouched")
+        s.walk_to(1.5, 4.0)
+        frames[lock] = np.stack([s.step().positions for _ in range(90)])  # (T, C, J, 3) metres
+        history = [s.recording(1.5, i) for i in range(2)]
+    rig, params = footlock.leg_rig(model.skeleton), footlock.params_for(model.skeleton, config)
+    for i in range(2):
+        labels = export.network_contacts(history[i], s.num_joints)
+        labels = None if labels is None else footlock.labels_per_point(labels)
+        locked, _ = footlock.lock_positions(params, rig, frames[False][:, i] * model.units_per_meter, labels)
+        np.testing.assert_allclose(frames[True][:, i], locked / model.units_per_meter, atol=1e-4)
+    assert np.abs(frames[True] - frames[False]).max() > 1e-3  # the lock did move feet
 
 
 def test_style_switch_and_blend_take_effect_without_recompiling(model):

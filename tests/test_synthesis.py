@@ -340,3 +340,13 @@ def test_four_characters_follow_their_paths(trained_pfnn, tmp_path):
     arrays = np.load(written["npz"])
     np.testing.assert_array_equal(arrays["positions"], np.asarray(one.positions))
     assert arrays["fps"] == 60.0 and list(arrays["names"]) == list(skeleton.names)
+    # foot_lock=False writes the decoded motion as generated; the default locks it: the same
+    # motion except hip, knee and ankle rotations, feet moved no more than the 0.15 m limit
+    raw = js.read_bvh(export.save_rollout(tmp_path / "raw", one, skeleton, foot_lock=False)["bvh"])
+    decoded = export.rollout_motion(one, skeleton)
+    np.testing.assert_allclose(js.global_positions(raw), js.global_positions(decoded), atol=1e-3)
+    legs = export.footlock.leg_rig(skeleton)
+    others = [j for j in range(skeleton.num_joints) if j not in (*legs.hip, *legs.knee, *legs.ankle)]
+    np.testing.assert_allclose(back.rotations[:, others], raw.rotations[:, others], atol=1e-5)
+    moved = np.linalg.norm(js.global_positions(back) - js.global_positions(raw), axis=-1).max() / upm
+    assert moved <= 0.15

@@ -21,27 +21,32 @@ Per foot there are two contact points, the heel (the ankle joint) and the toe (t
    the floor at the end of a stance rises as captured instead of being held down. The ankle goes
    to the heel's lock; while only the toe is locked (the heel rolls off) the foot turns about the
    held toe, the ankle one foot length from it towards the network's ankle (toe roll); the toe is
-   turned onto its lock while the heel is down. A lock is let go when its point lifts or speeds
-   up (above), when the network's
-   point is farther than ``unlock_radius_m`` from it, or when the leg cannot reach it (the
-   hip-ankle distance would exceed the legs' length by more than ``reach_slack_m``): no leg is
-   ever overstretched or pointed backwards to hold a foot. A point that lost a lock locks again
-   only once it is close to the network's point (``relock_fraction`` of the radius).
+   turned onto its lock while the heel is down, and the two locks are kept one foot length apart
+   (the foot is rigid). A lock is on a leash of ``leash_m``: a network point that slides farther
+   drags its lock along (no lock-release-relock cycles, no pop back later). A lock is let go when
+   its point lifts or speeds up (above) or when the leg cannot reach it (the hip-ankle distance
+   would exceed the legs' length by more than ``reach_slack_m``; the heel is let go first, the
+   toe can still pivot): no leg is overstretched or pointed backwards to hold a foot. A point that
+   was let go locks again only once it is drawn close to the network's point
+   (``relock_fraction`` of the leash).
 3. **Release without a pop.** Every change of what holds a point (release, heel to toe) is
    absorbed into an offset, position and velocity, that then decays with a critically damped
    spring of half-life ``halflife_s`` (inertialization), so the drawn foot neither jumps nor
-   changes speed abruptly (a touch-down stops the point at once, as a real foot stops);
-   the spring's own correction is capped at
-   ``max_correction_speed_m_s``, so a foot never catches up faster than that on top of the
-   network's motion, and the offset never exceeds ``max_offset_m``.
+   changes speed abruptly (a touch-down stops the point at once, as a real foot stops); the
+   spring's own correction is capped at ``max_correction_speed_m_s``, so a foot never catches up
+   faster than that on top of the network's motion; no point is ever drawn more than
+   ``max_offset_m`` from the network's; a toe nothing holds stays within 0.3 foot lengths of the
+   network's foot direction from the drawn ankle.
 4. **Leg IK** (:func:`two_bone_positions`, and for BVH export the rotation form
    :func:`jaxstyle.output.footik.two_bone_ik`): analytic hip-knee-ankle, the knee in the plane of
    the network's knee, never straighter than the bones allow.
 
-Defaults follow Holden's Motion-Matching demo where it has the same quantity (blend half-life
-0.1 s; 1.5 cm of length buffer, here the slack of the reach test: 100STYLE's actor walks with the
-stance leg within 1 mm of straight, so a lock must be allowed at full extension); its unlock
-radius is 0.2 m, here 0.12 m so that no foot is drawn more than 0.15 m from where the network put it.
+Defaults: the blend half-life is that of Holden's Motion-Matching demo (0.1 s). Its 0.2 m unlock
+radius becomes a 0.12 m leash and a 0.13 m cap, so no foot is drawn more than 0.15 m from where
+the network put it; its 1.5 cm leg-length buffer becomes a reach slack of 0 (100STYLE's actor
+walks with the stance leg within 1 mm of straight, so a lock must be allowed at full extension,
+and beyond it the heel gives way to the toe pivot). The contact thresholds were chosen on the
+paper-size models of ``experiments/quality.py`` and a real Neutral walk (``docs/quality.md``).
 
 :func:`lock_sequence` runs the scan; :func:`lock_motion` locks a :class:`jaxstyle.Motion`
 (rotations rewritten, bone lengths exact: what the BVH export writes); :func:`lock_positions`

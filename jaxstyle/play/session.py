@@ -452,15 +452,15 @@ def lpn_batched_step(model: LPNPlayModel, blend_bias: float = 1.5):
 _LOCKS: dict = {}
 
 
-def _lock_program(skeleton):
-    """The foot lock's parameters for ``skeleton`` (floor, units, frame rate) and the jitted
-    ``f(params, states, positions (C, J, 3), labels (C, 2, 2)) -> (states, positions)`` that locks
-    every character's feet for one frame (``jit(vmap(footlock.position_step))``), compiled once per
-    skeleton."""
-    key = (skeleton.names, float(skeleton.fps))
+def _lock_program(skeleton, config: footlock.FootLockConfig | None = None):
+    """The foot lock's parameters for ``skeleton`` (floor, units, frame rate) and ``config`` (the
+    defaults when ``None``) and the jitted ``f(params, states, positions (C, J, 3), labels (C, 2, 2))
+    -> (states, positions)`` that locks every character's feet for one frame
+    (``jit(vmap(footlock.position_step))``), compiled once per skeleton and setting."""
+    key = (skeleton.names, float(skeleton.fps), config)
     if key not in _LOCKS:
         rig = footlock.leg_rig(skeleton)
-        params = footlock.params_for(skeleton)
+        params = footlock.params_for(skeleton, config)
 
         def one(p, state, pos, labels):
             state, out, _ = footlock.position_step(p, rig, state, pos, labels)
@@ -479,7 +479,8 @@ class Session:
     """
 
     def __init__(self, model: AnyPlayModel, *, style: str | None = None, record_seconds: float = 30.0,
-                 blend_bias: float = 1.5, foot_lock: bool = True):
+                 blend_bias: float = 1.5, foot_lock: bool = True,
+                 foot_lock_config: footlock.FootLockConfig | None = None):
         self.model = model
         self.num_joints = model.skeleton.num_joints
         self.fps = float(model.skeleton.fps)
@@ -495,7 +496,7 @@ class Session:
         self._dirty = True
         self.frames = 0
         self.foot_lock = bool(foot_lock)
-        self._lock = _lock_program(model.skeleton)
+        self._lock = _lock_program(model.skeleton, foot_lock_config)
         self._lock_states = None
         if not model.styles:
             raise PlayError(f"{model.title} of {model.run_dir} has no styles to play")
