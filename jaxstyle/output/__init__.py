@@ -1,5 +1,7 @@
-"""What a run produces: BVH/npz export, foot IK, previews, quality metrics and synthesis along paths."""
+"""What a run produces: BVH/npz export, foot locking and foot IK, previews, quality metrics and synthesis along
+paths."""
 
 from jaxstyle._lazy import lazy_module
 
-__getattr__, __dir__ = lazy_module(__name__, ["export", "footik", "preview", "metrics", "quality", "viz", "synthesis"])
+__getattr__, __dir__ = lazy_module(__name__, ["export", "footlock", "footik", "preview", "metrics", "quality", "viz",
+                                              "synthesis"])
