@@ -1,4 +1,4 @@
-"""Foot contacts on skeletons of any unit, size and frame rate (issue 22 item 10).
+"""Foot contacts on skeletons of any unit, size and frame rate.
 
 The default ``"scaled"`` rule measures the paper's 0.01 m / 0.15 m/s in metres of a body with the
 100STYLE actor's legs and speeds over a fixed time span; ``"paper2022"`` is the paper's setting.

@@ -1,4 +1,4 @@
-"""Both feet landing together (issue 22 item 9): no half-cycle jump of the global phase between two
+"""Both feet landing together: no half-cycle jump of the global phase between two
 frames, and the footsteps of a mirrored clip are the original's with the feet swapped.
 
 Before the fix, on the shared data: Xia ``neutral_16_000`` and ``old_16_000`` (jumps) had 2 and 3

@@ -1,4 +1,4 @@
-"""``--joint-map`` / ``joint_map=``: a skeleton whose feet are not found by name (issue 22 item 8).
+"""``--joint-map`` / ``joint_map=``: a skeleton whose feet are not found by name.
 
 A real 100STYLE clip is written again with its ankles and toes renamed to names that say neither
 the joint nor its side. Without a map the dataset builders fail with one line that names the

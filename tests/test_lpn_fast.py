@@ -1,4 +1,4 @@
-"""The fast LPN training path (issue 20, item 1) against the plain one, on tiny sizes: the donated
+"""The fast LPN training path against the plain one, on tiny sizes: the donated
 scan without a step mask equals :func:`jaxstyle.train.scan.train_scan` (the pre-change driver);
 the im2col convolution of the FiLM generator equals XLA's convolution in values and gradients;
 bfloat16 products stay within bfloat16's precision of float32; the batch-size rule."""

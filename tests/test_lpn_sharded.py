@@ -1,4 +1,4 @@
-"""Data-parallel LPN-FiLM training (issue 20, item 5) on 4 host devices: a sharded step equals the
+"""Data-parallel LPN-FiLM training on 4 host devices: a sharded step equals the
 one-device step, a sharded run checkpoints and resumes on one device with the one-device result,
 and the batch must divide over the devices. Runs in a subprocess with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=4`` (the device count is fixed when JAX starts)."""

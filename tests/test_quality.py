@@ -1,5 +1,5 @@
-"""The quality benchmark on the 2022 controller (:func:`jaxstyle.output.quality.run_lpn`, issue 19
-item 5) and the demo's quality table (item 6): a tiny LPN-FiLM trained in a fixture on two
+"""The quality benchmark on the 2022 controller (:func:`jaxstyle.output.quality.run_lpn`) and the
+demo's quality table: a tiny LPN-FiLM trained in a fixture on two
 procedural styles is measured along the protocol's paths, and every figure is recomputed
 independently from what ``jaxstyle synthesize --model lpn-film`` writes for the same characters
 (the ``.npz`` of the network's joints, the BVH file of the exported skeleton) with the
