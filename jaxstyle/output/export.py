@@ -67,14 +67,17 @@ def network_contacts(rollout: Rollout | LPNRollout, num_joints: int) -> np.ndarr
 
 
 def lock_feet(motion: Motion, rollout: Rollout | LPNRollout | None = None, *,
-              config: footlock.FootLockConfig | None = None, skeleton: Motion | None = None) -> footlock.LockedMotion:
+              config: footlock.FootLockConfig | None = None, skeleton: Motion | None = None,
+              floor_2x2: np.ndarray | None = None) -> footlock.LockedMotion:
     """``motion`` with its feet locked while planted (:func:`jaxstyle.output.footlock.lock_motion`):
     contacts decided from the motion itself, started also by the network's predicted labels when
-    ``rollout``'s model has them (:func:`network_contacts`); the floor is the training
-    ``skeleton``'s (a clip of it, :func:`jaxstyle.output.footlock.skeleton_floor`), else the motion's own."""
+    ``rollout``'s model has them (:func:`network_contacts`); the floor is ``floor_2x2`` when given,
+    else the training ``skeleton``'s (a clip of it, :func:`jaxstyle.output.footlock.skeleton_floor`),
+    else the motion's own."""
     contacts = None if rollout is None else network_contacts(rollout, motion.num_joints)
-    floor = None if skeleton is None else footlock.skeleton_floor(skeleton)
-    return footlock.lock_motion(motion, contacts, config=config, floor_2x2=floor)
+    if floor_2x2 is None and skeleton is not None:
+        floor_2x2 = footlock.skeleton_floor(skeleton)
+    return footlock.lock_motion(motion, contacts, config=config, floor_2x2=floor_2x2)
 
 
 def save_rollout(path: str | os.PathLike, rollout: Rollout | LPNRollout, skeleton: Motion, *,

@@ -67,6 +67,7 @@ import numpy as np
 from jaxstyle.labels.contacts import FLOOR_PERCENTILE, FootJoints, body_units_per_meter, floor_heights
 from jaxstyle.motion import Motion, kinematics, quat
 from jaxstyle.motion.kinematics import UP_AXIS
+from jaxstyle.output import footik
 
 _GROUND = np.array([1.0 if a != UP_AXIS else 0.0 for a in range(3)], dtype=np.float32)
 
@@ -354,10 +355,8 @@ class LegRig(NamedTuple):
 
 def leg_rig(skeleton: Motion, feet: FootJoints | None = None) -> LegRig:
     """The :class:`LegRig` of a skeleton (feet found by name unless given)."""
-    from jaxstyle.output.footik import _leg_chains  # the same leg chains and error messages
-
     feet = feet or FootJoints.find(skeleton)
-    chains = _leg_chains(skeleton, feet)
+    chains = footik._leg_chains(skeleton, feet)  # the same leg chains and error messages
     parents = np.asarray(skeleton.parents)
     below = []
     for _, _, ankle in chains:
@@ -461,8 +460,6 @@ def _foot_direction(xp, foot, to_target):
 def _rotate_onto(g_rot, g_pos, motion: Motion, rotations, rig: LegRig, ankle_Tx2x3, toe_Tx2x3) -> None:
     """Rewrite hip, knee and ankle local rotations (in place) so each ankle lands on its target
     and each foot points at its toe target; frames where both already hold are left bit for bit."""
-    from jaxstyle.output import footik
-
     for side in range(2):
         hip, knee, ankle, toe = rig.hip[side], rig.knee[side], rig.ankle[side], rig.toe[side]
         moved = np.linalg.norm(ankle_Tx2x3[:, side] - g_pos[:, ankle], axis=-1) > 1e-6

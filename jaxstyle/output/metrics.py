@@ -28,12 +28,14 @@ from jaxstyle.labels.contacts import (
     FLOOR_PERCENTILE,
     HEIGHT_THRESHOLD_M,
     FootJoints,
+    body_units_per_meter,
     estimate_units_per_meter,
     joint_contacts,
     runs,
 )
 from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import UP_AXIS, bone_lengths, global_positions
+from jaxstyle.output import footlock
 
 
 def bone_length_errors(positions_TxJx3: np.ndarray, skeleton: Motion, min_length: float = 1e-6) -> np.ndarray:
@@ -404,9 +406,6 @@ def step_figures(positions_TxJx3: np.ndarray, skeleton: Motion, fps: float, *, f
     planted heights ``[side, heel/toe]``, the clip's own 5th height percentiles when omitted. The
     thresholds are :class:`jaxstyle.output.footlock.FootLockConfig`'s, in the skeleton's body size
     (:func:`jaxstyle.labels.contacts.body_units_per_meter`)."""
-    from jaxstyle.labels.contacts import body_units_per_meter
-    from jaxstyle.output import footlock
-
     pos = _positions(positions_TxJx3, num_joints=skeleton.num_joints)
     _check_scale(1.0, fps)
     feet = FootJoints.find(skeleton)
@@ -454,8 +453,6 @@ def foot_below_floor_m(positions_TxJx3: np.ndarray, skeleton: Motion, floor_2x2:
     """The deepest (m) any heel or toe goes below its planted height ``floor_2x2`` (``[side,
     heel/toe]``, e.g. :func:`jaxstyle.output.footlock.skeleton_floor` of the training skeleton); 0
     when none does."""
-    from jaxstyle.output import footlock
-
     pos = _positions(positions_TxJx3, num_joints=skeleton.num_joints)
     _check_scale(units_per_meter)
     heights = footlock.points_of(pos, FootJoints.find(skeleton))[..., UP_AXIS]

@@ -45,7 +45,7 @@ from jaxstyle.data import datasets
 from jaxstyle.data.lpn_features import LPNLayout, end_effector_columns
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import PFNNLayout
-from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter
+from jaxstyle.labels.contacts import FootJoints, body_units_per_meter, estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.nn import pfnn
@@ -116,11 +116,12 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
     and the path's ideal positions (previews)."""
     upm = estimate_units_per_meter(skeleton)
     out = jax.tree.map(np.asarray, rollouts)
+    floor = footlock.skeleton_floor(skeleton)  # one skeleton for the whole batch
     results, drawn = [], {}
     for k, (i, p) in enumerate(pairs):
         one = jax.tree.map(lambda v, k=k: v[k], out)
         s = subjects[i]
-        e = exported(one, skeleton)
+        e = exported(one, skeleton, floor)
         drawn[(s.title, p)] = (e.net if e.locked is None else e.locked, signals[k].positions)
         row = measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row})
@@ -186,21 +187,24 @@ class Exported(NamedTuple):
     before (``bvh``) and after foot locking (``locked``, what the BVH file holds), the lock's
     :class:`jaxstyle.output.footlock.LockedMotion` (``None`` when the outputs are not finite), and
     for comparison ``pinned``: the skeleton after the plain contact IK of the 2022 paper's section
-    4.4 (:func:`pinned_feet`)."""
+    4.4 (:func:`pinned_feet`); ``floor_2x2``, the training skeleton's planted heights the lock and
+    the floor figures use."""
 
     net: np.ndarray
     bvh: np.ndarray | None
     locked: np.ndarray | None
     lock: Any
-    pinned: np.ndarray | None = None
+    pinned: np.ndarray | None
+    floor_2x2: np.ndarray
 
 
-def raised_to_floor(positions_TxJx3: np.ndarray, skeleton: Motion) -> np.ndarray:
-    """The positions with every heel and toe below the training skeleton's floor
-    (:func:`jaxstyle.output.footlock.skeleton_floor`) raised onto it, nothing else changed: what
-    the floor alone does to the skating figure (feet that glide through the floor glide on it)."""
+def raised_to_floor(positions_TxJx3: np.ndarray, skeleton: Motion, floor_2x2: np.ndarray) -> np.ndarray:
+    """The positions with every heel and toe below its planted height ``floor_2x2`` (``[side,
+    heel/toe]``, e.g. :func:`jaxstyle.output.footlock.skeleton_floor` of the training skeleton)
+    raised onto it, nothing else changed: what the floor alone does to the skating figure (feet
+    that glide through the floor glide on it)."""
     out = np.array(positions_TxJx3, dtype=np.float64, copy=True)
-    feet, floor = FootJoints.find(skeleton), footlock.skeleton_floor(skeleton)
+    feet, floor = FootJoints.find(skeleton), np.asarray(floor_2x2, dtype=np.float64)
     for side in range(2):
         for k, j in enumerate((feet.ankles[side], feet.toes[side])):
             out[:, j, 1] = np.maximum(out[:, j, 1], floor[side, k])
@@ -222,16 +226,20 @@ def pinned_feet(motion: Motion, rollout) -> Motion:
     return footik.fix_foot_sliding(motion, contacts, blend_frames=5, pin_toes=True)
 
 
-def exported(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: Motion) -> Exported:
+def exported(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: Motion,
+             floor_2x2: np.ndarray | None = None) -> Exported:
     """:class:`Exported` of one character's rollout of either controller (the network's joints are
-    the skeleton's: an LPN rollout's extra hand points are left out)."""
+    the skeleton's: an LPN rollout's extra hand points are left out). ``floor_2x2``: the skeleton's
+    planted heights (:func:`jaxstyle.output.footlock.skeleton_floor`, computed when omitted; pass
+    it to measure many rollouts on one skeleton)."""
+    floor = footlock.skeleton_floor(skeleton) if floor_2x2 is None else np.asarray(floor_2x2)
     net = np.asarray(rollout.positions, dtype=np.float64)[:, :skeleton.num_joints]
     if not np.isfinite(np.asarray(rollout.outputs)).all():
-        return Exported(net, None, None, None)
+        return Exported(net, None, None, None, None, floor)
     motion = export.rollout_motion(rollout, skeleton)
-    lock = export.lock_feet(motion, rollout, skeleton=skeleton)
+    lock = export.lock_feet(motion, rollout, floor_2x2=floor)
     return Exported(net, global_positions(motion), global_positions(lock.motion), lock,
-                    global_positions(pinned_feet(motion, rollout)))
+                    global_positions(pinned_feet(motion, rollout)), floor)
 
 
 LOCK_FIGURES = ("steps_per_s", "stance_fraction", "slide_per_contact_m", "steps_per_s_bvh", "ik_foot_offset_max_m",
@@ -275,7 +283,7 @@ def measure(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: M
         **dataclasses.asdict(steps),
         "steps_per_s_bvh": metrics.step_figures(bvh, skeleton, fps).steps_per_s,
         "ik_foot_offset_max_m": metrics.foot_offset_max_m(bvh, after, skeleton, units_per_meter=upm),
-        "foot_below_floor_m": metrics.foot_below_floor_m(after, skeleton, footlock.skeleton_floor(skeleton),
+        "foot_below_floor_m": metrics.foot_below_floor_m(after, skeleton, e.floor_2x2,
                                                          units_per_meter=upm),
         "bone_error_mean": float(np.mean(bones)), "bone_error_max": float(np.max(bones)),
         "bone_error_bvh_max": float(np.max(metrics.bone_length_errors(bvh, skeleton))),
@@ -286,7 +294,7 @@ def measure(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: M
         "stop_time_s": float(np.max(stops)) if len(stops) else nan, "stop_commands": int(len(stops)),
         "jitter_m_s3": q.jitter_m_s3,
         "ankle_jerk_m_s3": metrics.foot_jerk(net, skeleton, fps, units_per_meter=upm),
-        "foot_skating_floor_m_s": metrics.foot_skating(raised_to_floor(bvh, skeleton), skeleton, fps,
+        "foot_skating_floor_m_s": metrics.foot_skating(raised_to_floor(bvh, skeleton, e.floor_2x2), skeleton, fps,
                                                        units_per_meter=upm),
         "ankle_jerk_bvh_m_s3": metrics.foot_jerk(bvh, skeleton, fps, units_per_meter=upm),
         "ankle_jerk_locked_m_s3": metrics.foot_jerk(after, skeleton, fps, units_per_meter=upm),
@@ -660,8 +668,6 @@ def sliding_sources(e: Exported, skeleton: Motion, fps: float) -> dict[str, floa
     network's point slower than the touch-down speed) and ``free, fast`` (free, the network's point
     moving along the floor faster than a contact may start). Returns each share of the total
     travel (summing to 1; NaN without such steps)."""
-    from jaxstyle.labels.contacts import body_units_per_meter
-
     feet = FootJoints.find(skeleton)
     locked_pts = footlock.points_of(e.locked, feet)  # (T, 2, 2, 3)
     net_pts = footlock.points_of(e.bvh, feet)
@@ -671,8 +677,9 @@ def sliding_sources(e: Exported, skeleton: Motion, fps: float) -> dict[str, floa
     travel = np.linalg.norm(np.diff(locked_pts[..., [0, 2]], axis=0), axis=-1)
     held = e.lock.frames.locked[1:] & e.lock.frames.locked[:-1]
     drawn = np.stack([e.lock.frames.ankle, e.lock.frames.toe], axis=2)
-    easing = np.linalg.norm(drawn - net_pts, axis=-1)[1:] > 0.001 * body_units_per_meter(skeleton, feet)
-    speed = np.linalg.norm(np.diff(net_pts[..., [0, 2]], axis=0), axis=-1) * fps / body_units_per_meter(skeleton, feet)
+    body = body_units_per_meter(skeleton, feet)
+    easing = np.linalg.norm(drawn - net_pts, axis=-1)[1:] > 0.001 * body
+    speed = np.linalg.norm(np.diff(net_pts[..., [0, 2]], axis=0), axis=-1) * fps / body
     fast = speed >= footlock.FootLockConfig().speed_on_m_s
     parts = {"held": held, "easing": ~held & easing, "free, slow": ~held & ~easing & ~fast,
              "free, fast": ~held & ~easing & fast}

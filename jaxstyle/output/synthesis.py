@@ -32,7 +32,7 @@ from jaxstyle.data.normalise import Normaliser
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
-from jaxstyle.output import export, metrics, preview
+from jaxstyle.output import export, footlock, metrics, preview
 
 
 class Character(NamedTuple):
@@ -191,7 +191,8 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
     files, rows = [], []
     titles = [c.title for c in characters]
     ones = [jax.tree.map(lambda v, k=k: np.asarray(v[k]), rollouts) for k in range(len(pairs))]
-    shown = [quality.exported(one, skeleton) for one in ones]
+    floor = footlock.skeleton_floor(skeleton)  # one skeleton for every rollout
+    shown = [quality.exported(one, skeleton, floor) for one in ones]
 
     def drawn(e):
         return e.net if e.bvh is None else (e.locked if foot_lock else e.bvh)
