@@ -9,6 +9,7 @@ it; the slow test at the end reloads a trained one from its run folder."""
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
 import time
@@ -218,6 +219,51 @@ def test_characters_added_and_removed(model):
     assert np.linalg.norm(s.origin() - before, axis=1).max() < 0.05 * 0.5 * s.speed  # < 5% of walking 0.5 s
 
 
+def test_many_characters_share_one_program_per_slot_count(model):
+    """Characters live in power-of-two slots: adding a third and a fourth character compiles the
+    frame program once (for 4 slots), removing one compiles nothing; each character's frames are
+    its own (a character added later records only from when it was added), and the slot of a
+    removed character starts afresh when a new one takes it (its feet unlocked, beside the first)."""
+    s = session.Session(model, style="Neutral")
+    s.add_character("Crouched")
+    s.walk_to(0.0, 3.0)
+    for _ in range(3):
+        s.step()
+    two = s._step._cache_size()
+    s.add_character()
+    for _ in range(3):
+        s.step()
+    assert s._slots == 4 and s._step._cache_size() == two + 1
+    s.add_character("Crouched")
+    s.remove_character()
+    s.add_character()
+    for _ in range(3):
+        s.step()
+    assert s._step._cache_size() == two + 1 and len(s.characters) == 4
+    assert s.recording(1.0, 0).positions.shape[0] == 9 and s.recording(1.0, 3).positions.shape[0] == 3
+    frame = s.step()
+    assert frame.positions.shape == (4, s.num_joints, 3)
+    assert np.linalg.norm(frame.origin[3] - frame.origin[0]) < 3.0  # beside the first, not at the start
+
+
+def test_control_rows_of_many_characters_equal_each_alone():
+    """The steering rows of characters in different modes, computed together, equal each
+    character's row computed alone (no mixing between rows), and waypoints are consumed per
+    character."""
+    rng = np.random.default_rng(2)
+    steerings = [Steering("target", [(3.0, 4.0), (0.0, 9.0)], 0.0, 1.3), Steering("direction", [], 2.0, 0.8),
+                 Steering("stop"), Steering("target", [(0.1, 0.1), (5.0, -2.0)], 0.0, 2.0),
+                 Steering("target", [(0.05, 0.0)], 0.0, 1.0)]
+    origin, yaw = rng.normal(size=(5, 2)) * 0.1, rng.uniform(-3, 3, size=5)
+    alone = [control_row(origin[i], yaw[i], copy.deepcopy(st), 50.0) for i, st in enumerate(steerings)]
+    offsets, facing = session.control_rows(origin, yaw, steerings, 50.0)
+    for i in range(5):
+        np.testing.assert_allclose(offsets[i], alone[i][0], atol=1e-12)
+        np.testing.assert_allclose(facing[i], alone[i][1], atol=1e-12)
+    assert steerings[3].waypoints == [(5.0, -2.0)] and steerings[4].mode == "stop"
+    assert np.abs(offsets[1]).max() > 0 and np.abs(offsets[2]).max() == 0
+
+
 def test_recording_writes_bvh_of_the_last_seconds(model, tmp_path):
     s = session.Session(model)
     with pytest.raises(PlayError, match="nothing recorded"):
@@ -288,6 +334,16 @@ def test_bone_transforms_put_the_unit_cylinder_on_each_bone():
         np.testing.assert_allclose(mid[b], (positions[j] + positions[parents[j]]) / 2)
         np.testing.assert_allclose(scales[b, 2], np.linalg.norm(bone))
         np.testing.assert_allclose(_rotate(q[b], [0, 0, 1]), bone / np.linalg.norm(bone), atol=1e-9)
+
+
+def test_bone_transforms_of_many_characters_equal_each_alone():
+    rng = np.random.default_rng(1)
+    positions = rng.normal(size=(3, 5, 3))
+    parents = np.array([-1, 0, 1, 2, 0])
+    together = bone_transforms(positions, parents)
+    for c in range(3):
+        for a, b in zip(together, bone_transforms(positions[c], parents), strict=True):
+            np.testing.assert_allclose(a[c], b)
 
 
 def test_ground_point():

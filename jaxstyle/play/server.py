@@ -92,15 +92,17 @@ def _unit_sphere() -> tuple[np.ndarray, np.ndarray]:
 
 
 def bone_transforms(positions_Jx3: np.ndarray, parents_J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per bone (joint with a parent): the midpoint ``(B, 3)``, the quaternion ``(B, 4)`` (w x y z)
-    turning +Z onto the bone and the scales ``(B, 3)`` (radius, radius, length) of a unit cylinder."""
+    """Per bone (joint with a parent): the midpoint ``(..., B, 3)``, the quaternion ``(..., B, 4)``
+    (w x y z) turning +Z onto the bone and the scales ``(..., B, 3)`` (radius, radius, length) of a
+    unit cylinder; ``positions`` may carry leading axes (characters)."""
+    positions = np.asarray(positions_Jx3)
     child = np.flatnonzero(parents_J >= 0)
-    a, b = positions_Jx3[parents_J[child]], positions_Jx3[child]
+    a, b = positions[..., parents_J[child], :], positions[..., child, :]
     d = b - a
     length = np.linalg.norm(d, axis=-1)
-    u = d / np.maximum(length, 1e-9)[:, None]
-    q = np.stack([1.0 + u[:, 2], -u[:, 1], u[:, 0], np.zeros_like(length)], axis=-1)  # rotation +Z -> u
-    flip = q[:, 0] < 1e-6  # u = -Z: half a turn about X
+    u = d / np.maximum(length, 1e-9)[..., None]
+    q = np.stack([1.0 + u[..., 2], -u[..., 1], u[..., 0], np.zeros_like(length)], axis=-1)  # rotation +Z -> u
+    flip = q[..., 0] < 1e-6  # u = -Z: half a turn about X
     q[flip] = [0.0, 1.0, 0.0, 0.0]
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     scales = np.stack([np.full_like(length, BONE_RADIUS_M), np.full_like(length, BONE_RADIUS_M), length], -1)
@@ -150,7 +152,8 @@ class PlayServer:
         self.lock = threading.RLock()
         self._running = threading.Event()
         self._thread: threading.Thread | None = None
-        self._nodes: list = []  # per character: (bones, joints, future) handles
+        self._nodes: list = []  # the handles of all characters' bones, joints and future trajectories
+        self._node_count = 0  # the characters they show
         self._target_node = None
         self._server = None
         self._cam_offset = np.array([2.2, 1.4, -3.6])
@@ -310,45 +313,51 @@ class PlayServer:
         return on_click
 
     def _clear_characters(self) -> None:
-        for nodes in self._nodes:
-            for n in nodes:
-                n.remove()
+        for n in self._nodes:
+            n.remove()
         self._nodes = []
 
-    def _add_character_nodes(self, i: int, frame) -> None:
+    def _add_character_nodes(self, frame) -> None:
+        """One scene node for the bones of all characters, one for their joints and one for their
+        future trajectories (instances coloured per character), so a frame sends three updates
+        whatever the number of characters."""
         scene = self._server.scene
-        color = tuple(int(c) for c in COLORS[i % len(COLORS)])
         parents = self.session.model.skeleton.parents
-        mid, q, s = bone_transforms(frame.positions[i], parents)
-        bones = scene.add_batched_meshes_simple(f"/characters/{i}/bones", *self._cylinder, q, mid, batched_scales=s,
-                                                batched_colors=color, lod="off", cast_shadow=True)
+        c, j = frame.positions.shape[:2]
+        colors = COLORS[np.arange(c) % len(COLORS)].astype(np.uint8)
+        mid, q, s = (v.reshape(-1, v.shape[-1]) for v in bone_transforms(frame.positions, parents))
+        bones = scene.add_batched_meshes_simple("/characters/bones", *self._cylinder, q, mid, batched_scales=s,
+                                                batched_colors=np.repeat(colors, len(mid) // c, axis=0), lod="off",
+                                                cast_shadow=True)
         joints = scene.add_batched_meshes_simple(
-            f"/characters/{i}/joints", *self._sphere, np.tile([1.0, 0, 0, 0], (len(parents), 1)), frame.positions[i],
-            batched_scales=np.full(len(parents), JOINT_RADIUS_M), batched_colors=color, lod="off", cast_shadow=True)
-        future = scene.add_point_cloud(f"/characters/{i}/future", self._future_points(frame, i),
-                                       colors=color, point_size=0.08, point_shape="circle")
-        self._nodes.append((bones, joints, future))
+            "/characters/joints", *self._sphere, np.tile([1.0, 0, 0, 0], (c * j, 1)), frame.positions.reshape(-1, 3),
+            batched_scales=np.full(c * j, JOINT_RADIUS_M), batched_colors=np.repeat(colors, j, axis=0), lod="off",
+            cast_shadow=True)
+        future = scene.add_point_cloud("/characters/future", self._future_points(frame),
+                                       colors=np.repeat(colors, frame.future.shape[1], axis=0), point_size=0.08,
+                                       point_shape="circle")
+        self._nodes = [bones, joints, future]
 
     @staticmethod
-    def _future_points(frame, i: int) -> np.ndarray:
-        f = frame.future[i]
+    def _future_points(frame) -> np.ndarray:
+        f = frame.future.reshape(-1, 2)
         return np.c_[f[:, 0], np.full(len(f), 0.02), f[:, 1]].astype(np.float32)
 
     def _update_scene(self, frame, targets) -> None:
         parents = self.session.model.skeleton.parents
-        while len(self._nodes) > len(frame.positions):
-            for n in self._nodes.pop():
-                n.remove()
+        count = len(frame.positions)
         with self._server.atomic():
-            for i in range(len(frame.positions)):
-                if i >= len(self._nodes):
-                    self._add_character_nodes(i, frame)
-                    continue
-                bones, joints, future = self._nodes[i]
-                mid, q, s = bone_transforms(frame.positions[i], parents)
+            if self._nodes and self._node_count != count:  # a character added or removed
+                self._clear_characters()
+            if not self._nodes:
+                self._add_character_nodes(frame)
+                self._node_count = count
+            else:
+                bones, joints, future = self._nodes
+                mid, q, s = (v.reshape(-1, v.shape[-1]) for v in bone_transforms(frame.positions, parents))
                 bones.batched_positions, bones.batched_wxyzs, bones.batched_scales = mid, q, s
-                joints.batched_positions = frame.positions[i]
-                future.points = self._future_points(frame, i)
+                joints.batched_positions = frame.positions.reshape(-1, 3)
+                future.points = self._future_points(frame)
             points = [p for t in targets for p in t]
             if points:
                 xyz = np.array([[x, 0.03, z] for x, z in points], np.float32)

@@ -55,20 +55,19 @@ import numpy as np
 from jaxstyle.control import controller, loop, lpn_controller
 from jaxstyle.control.controller import Rollout, RolloutState
 from jaxstyle.data.lpn_features import LPNLayout, end_effector_columns
-from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline, selection
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn, style_models
 from jaxstyle.output import footlock, lpn_synthesis, synthesis
+from jaxstyle.play import frame as live
+from jaxstyle.play.frame import Steering, _wrap, control_row, control_rows  # noqa: F401  (the session's steering)
 
 MAX_BLEND = 3
 STAND_EASE = 0.1  # per frame, the share of the gap to the asked standing amount closed (``Session.controls``)
-ARRIVE_M = 0.3  # a waypoint is reached within this distance
 PLAY_DIR = "play"  # under the run folder: learned styles, uploads, recordings
 PFNN = "pfnn"  # the model key of the 2018 PFNN (the 2022 models': jaxstyle.mason2022.synthesis.MODELS)
 LPN_DIR = "lpn"  # under the run folder: the trained 2022 model (`jaxstyle lpn`, `jaxstyle demo --model lpn-film`)
-SAMPLE_SECONDS = np.arange(FUTURE_SAMPLES) * loop.SPACING / 60.0  # the future samples' times, 0 .. 50 frames
 
 
 class PlayError(pipeline.PipelineError):
@@ -330,51 +329,6 @@ def load_any(run_dir: str | Path, key: str | None = None, *, progress: bool = Fa
     return load_lpn_model(run_dir, progress=progress)
 
 
-@dataclasses.dataclass
-class Steering:
-    """How one character is steered: ``mode`` ``stop``, ``target`` (walk through ``waypoints``, x z
-    in metres, then stop) or ``direction`` (walk along ``heading``); at ``speed`` m/s."""
-
-    mode: str = "stop"
-    waypoints: list[tuple[float, float]] = dataclasses.field(default_factory=list)
-    heading: float = 0.0
-    speed: float = 1.0
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
-
-
-def control_row(origin_m: np.ndarray, yaw: float, steering: Steering, units_per_meter: float
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """One row of :class:`jaxstyle.control.loop.Controls` for a character at ``origin_m`` (x, z in
-    metres) facing ``yaw``: ``offsets (6, 2)`` (global ground displacement to the future samples,
-    file units) and ``yaw (6,)``. Towards a target the displacement grows at ``speed`` and stops at
-    the target; the facing turns to the direction of travel (the shorter way round); standing
-    still keeps the current facing. Advances ``steering`` past a reached waypoint."""
-    offsets = np.zeros((FUTURE_SAMPLES, 2))
-    facing = yaw
-    if steering.mode == "target":
-        while steering.waypoints:
-            d = np.asarray(steering.waypoints[0]) - origin_m
-            if np.hypot(*d) > ARRIVE_M:
-                break
-            steering.waypoints.pop(0)
-        if not steering.waypoints:
-            steering.mode = "stop"
-        else:
-            d = np.asarray(steering.waypoints[0]) - origin_m
-            dist = float(np.hypot(*d))
-            reach = np.minimum(steering.speed * SAMPLE_SECONDS, dist)
-            offsets = reach[:, None] * (d / dist)[None]
-            facing = yaw + _wrap(math.atan2(d[0], d[1]) - yaw)
-    elif steering.mode == "direction":
-        h = steering.heading
-        offsets = steering.speed * SAMPLE_SECONDS[:, None] * np.array([math.sin(h), math.cos(h)])[None]
-        facing = yaw + _wrap(h - yaw)
-    return offsets * units_per_meter, np.full(FUTURE_SAMPLES, facing)
-
-
 KEY_HEADINGS = {"W": 0.0, "A": math.pi / 2, "S": math.pi, "D": -math.pi / 2}
 """Keyboard steering: the heading of each key relative to the camera's view direction (W walks away
 from the camera, S towards it, A to the left, D to the right)."""
@@ -393,15 +347,15 @@ def key_heading(key: str, camera_yaw: float) -> float:
 @dataclasses.dataclass
 class Character:
     """One walking character: its style (``style``; or ``blend``: ``(names, weights)``), steering,
-    formation offset (metres, added to every target so characters do not meet) and its recent
-    frames (ring buffers of the de-normalised network outputs and generated frames)."""
+    formation offset (metres, added to every target so characters do not meet), its standing
+    amount and the session frame from which its slot's recorded frames are its own (``since``)."""
 
     style: str
     steering: Steering
     offset: np.ndarray
     blend: tuple[tuple[str, ...], tuple[float, ...]] | None = None
-    history: list = dataclasses.field(default_factory=list)
     stand: float = 0.0
+    since: int = 0
 
 
 class Frame(NamedTuple):
@@ -449,27 +403,6 @@ def lpn_batched_step(model: LPNPlayModel, blend_bias: float = 1.5):
     return _STEPS[key][1]
 
 
-_LOCKS: dict = {}
-
-
-def _lock_program(skeleton, config: footlock.FootLockConfig | None = None):
-    """The foot lock's parameters for ``skeleton`` (floor, units, frame rate) and ``config`` (the
-    defaults when ``None``) and the jitted ``f(params, states, positions (C, J, 3), labels (C, 2, 2))
-    -> (states, positions)`` that locks every character's feet for one frame
-    (``jit(vmap(footlock.position_step))``), compiled once per skeleton and setting."""
-    key = (skeleton.names, float(skeleton.fps), config)
-    if key not in _LOCKS:
-        rig = footlock.leg_rig(skeleton)
-        params = footlock.params_for(skeleton, config)
-
-        def one(p, state, pos, labels):
-            state, out, _ = footlock.position_step(p, rig, state, pos, labels)
-            return state, out
-
-        _LOCKS[key] = (params, jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0))))
-    return _LOCKS[key]
-
-
 class Session:
     """A live session on a :class:`PlayModel` (2018) or :class:`LPNPlayModel` (2022): characters,
     steering, styles, blends, recording.
@@ -485,19 +418,27 @@ class Session:
         self.num_joints = model.skeleton.num_joints
         self.fps = float(model.skeleton.fps)
         self.upm = float(model.units_per_meter)
-        self._step = model.batched_step(float(blend_bias))
+        columns = (live.contact_columns(self.num_joints, int(model.base.model.output_size))
+                   if isinstance(model, PlayModel) else None)
+        # the whole frame (network step, foot lock, scene arrays) as one jitted call, compiled once
+        # per slot count (jaxstyle.play.frame)
+        self._step = live.frame_program(model.batched_step(float(blend_bias)), model.skeleton, self.num_joints,
+                                        columns, foot_lock_config)
         self._start = model.start_state()
         self.capacity = max(1, int(round(record_seconds * self.fps)))
         self.speed = float(model.speed)
         self.characters: list[Character] = []
-        self._states: RolloutState | None = None
+        self._slots = 0
+        self._states: RolloutState | None = None  # (slots, ...): the characters, then spare copies of the start
+        self._lock_states: footlock.LockState | None = None
         self._runtimes = None
+        self._runtime_of: dict = {}  # runtime style per style or blend played
         self._ratios: dict = {}  # the PFNN backbone's global-phase rate per style or blend played
         self._dirty = True
+        self._where: tuple[np.ndarray, np.ndarray] | None = None  # (origin (S, 2) m, yaw (S,)) after the last step
+        self._history: list = []  # per frame: (frame number, the host copy of every slot's network output)
         self.frames = 0
         self.foot_lock = bool(foot_lock)
-        self._lock = _lock_program(model.skeleton, foot_lock_config)
-        self._lock_states = None
         if not model.styles:
             raise PlayError(f"{model.title} of {model.run_dir} has no styles to play")
         self.add_character(style or next(iter(model.styles)))
@@ -520,6 +461,7 @@ class Session:
     def add_style(self, style: Style) -> None:
         """Make ``style`` playable (a style learned live); it replaces one of the same name."""
         self.model.styles[style.name] = style
+        self._runtime_of.clear()
         self._dirty = True
 
     def set_style(self, name: str, character: int = 0) -> None:
@@ -576,38 +518,53 @@ class Session:
     # --- characters ---------------------------------------------------------------------------
     def add_character(self, style: str | None = None) -> int:
         """A new character beside the others (1.2 m apart), in ``style`` (default the first's);
-        returns its index."""
+        returns its index. It takes the next slot; past the last slot the slots double (the frame
+        program compiles once for the new slot count)."""
         style = style or self.characters[0].style
         self._check_style(style)
         i = len(self.characters)
         offset = np.array([1.2 * ((i + 1) // 2) * (1 if i % 2 else -1), 0.0])
         first = self.characters[0].steering if self.characters else Steering(speed=self.speed)
         points = [(x + offset[0], z + offset[1]) for x, z in first.waypoints]  # the first has offset 0
-        self.characters.append(Character(style, dataclasses.replace(first, waypoints=points), offset))
         start = self._start._replace(hist_xz=self._start.hist_xz + jnp.asarray(offset * self.upm, jnp.float32))
-        if self._states is None:
-            self._states = jax.tree.map(lambda v: v[None], start)
-        else:
-            # the new one starts beside the first character, where it stands now
+        if i:  # the new one starts beside the first character, where it stands now
             here = jnp.asarray(self.origin()[0] * self.upm, jnp.float32) - self._start.hist_xz[-1]
             start = start._replace(hist_xz=start.hist_xz + here)
-            self._states = jax.tree.map(lambda a, b: jnp.concatenate([a, b[None]]), self._states, start)
+        if i >= self._slots:
+            slots = live.slots_for(i + 1)
+            spare = jax.tree.map(lambda v: jnp.broadcast_to(v, (slots - self._slots,) + v.shape), self._start)
+            self._states = spare if self._states is None else jax.tree.map(
+                lambda a, b: jnp.concatenate([a, b]), self._states, spare)
+            locks = live.init_lock_states(slots - self._slots)
+            self._lock_states = locks if self._lock_states is None else jax.tree.map(
+                lambda a, b: jnp.concatenate([a, b]), self._lock_states, locks)
+            self._slots = slots
+        self._states = jax.tree.map(lambda a, b: a.at[i].set(b), self._states, start)
+        self._lock_states = jax.tree.map(lambda a, b: a.at[i].set(b), self._lock_states, footlock.init_state())
+        self.characters.append(Character(style, dataclasses.replace(first, waypoints=points), offset,
+                                         since=self.frames))
+        self._where = None
         self._dirty = True
         return i
 
     def remove_character(self) -> None:
-        """Remove the last character (the first one always stays)."""
+        """Remove the last character (the first one always stays); its slot stays, unused."""
         if len(self.characters) > 1:
             self.characters.pop()
-            self._states = jax.tree.map(lambda v: v[:-1], self._states)
             self._dirty = True
+
+    def _ground(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._where is None:
+            xz, yaw = jax.device_get((self._states.hist_xz[:, -1], self._states.hist_yaw[:, -1]))
+            self._where = (np.asarray(xz) / self.upm, np.asarray(yaw))
+        return self._where
 
     def origin(self) -> np.ndarray:
         """Where each character stands, ``(C, 2)`` x z in metres."""
-        return np.asarray(self._states.hist_xz[:, -1]) / self.upm
+        return self._ground()[0][:len(self.characters)].copy()
 
     def yaw(self) -> np.ndarray:
-        return np.asarray(self._states.hist_yaw[:, -1])
+        return self._ground()[1][:len(self.characters)].copy()
 
     # --- steering -----------------------------------------------------------------------------
     def walk_to(self, x: float, z: float, *, append: bool = False) -> None:
@@ -655,74 +612,70 @@ class Session:
     # --- the frame ----------------------------------------------------------------------------
     def controls(self) -> loop.Controls:
         """This frame's :class:`Controls` rows, stacked over characters: ``offsets (C, 6, 2)``,
-        ``yaw (C, 6)`` and ``stand (C,)``, no path following (the targets are steered here).
+        ``yaw (C, 6)`` and ``stand (C,)`` (:func:`jaxstyle.play.frame.control_rows`), no path
+        following (the targets are steered here).
 
         ``stand`` is the PFNN demo's standing amount (Holden et al. 2017; see
         :func:`jaxstyle.control.controller.advance`): it eases towards 1 while a character is told
         to stand and towards 0 while it walks, by :data:`STAND_EASE` of the gap per frame, so a
         stopped character stops instead of drifting on."""
-        origin, yaw = self.origin(), self.yaw()
-        rows = [control_row(origin[i], float(yaw[i]), c.steering, self.upm) for i, c in enumerate(self.characters)]
+        offsets, yaw = control_rows(self.origin(), self.yaw(), [c.steering for c in self.characters], self.upm)
         for c in self.characters:
             c.stand += STAND_EASE * (float(c.steering.mode == "stop") - c.stand)
-        return loop.Controls(jnp.asarray(np.stack([r[0] for r in rows]), jnp.float32),
-                             jnp.asarray(np.stack([r[1] for r in rows]), jnp.float32),
-                             stand=jnp.asarray([c.stand for c in self.characters], jnp.float32))
+        return loop.Controls(offsets.astype(np.float32), yaw.astype(np.float32),
+                             stand=np.array([c.stand for c in self.characters], np.float32))
+
+    def _restack(self) -> None:
+        """The runtime style of every slot (the spare slots play the first character's), and for a
+        PFNN-backbone 2022 model each slot's global-phase rate."""
+        keys = [self._key(c) for c in self.characters]
+        for c, k in zip(self.characters, keys, strict=True):
+            if k not in self._runtime_of:
+                self._runtime_of[k] = self.runtime_of(c)
+        padded = keys + [keys[0]] * (self._slots - len(keys))
+        self._runtimes = synthesis.stack_trees([self._runtime_of[k] for k in padded])
+        if isinstance(self.model, LPNPlayModel) and self.model.loaded.model.config.backbone == "pfnn":
+            for c, k in zip(self.characters, keys, strict=True):
+                if k not in self._ratios:
+                    self._ratios[k] = self.model.phase_ratio(*self._playing(c))
+            ratios = [self._ratios[k] for k in padded]
+            self._states = self._states._replace(phase_ratio=jnp.asarray(ratios, jnp.float32))
 
     def step(self) -> Frame:
-        """Advance every character by one frame (one jitted call) and return what to draw."""
+        """Advance every character by one frame (one jitted call: the network step of every slot,
+        the feet locked while planted when :attr:`foot_lock` is on, :mod:`jaxstyle.output.footlock`)
+        and return what to draw."""
         t0 = time.perf_counter()
         if self._dirty:
-            self._runtimes = synthesis.stack_trees([self.runtime_of(c) for c in self.characters])
-            if isinstance(self.model, LPNPlayModel) and self.model.loaded.model.config.backbone == "pfnn":
-                for c in self.characters:
-                    if self._key(c) not in self._ratios:
-                        self._ratios[self._key(c)] = self.model.phase_ratio(*self._playing(c))
-                ratios = [self._ratios[self._key(c)] for c in self.characters]
-                self._states = self._states._replace(phase_ratio=jnp.asarray(ratios, jnp.float32))
+            self._restack()
             self._dirty = False
+        n, spare = len(self.characters), self._slots - len(self.characters)
         controls = self.controls()
-        self._states, out = self._step(self._runtimes, self._states, (controls.offsets, controls.yaw, controls.stand))
-        out, future, origin, yaw = jax.device_get((out, self._states.future, self._states.hist_xz[:, -1],
-                                                   self._states.hist_yaw[:, -1]))
-        for i, c in enumerate(self.characters):
-            c.history.append(jax.tree.map(lambda v, i=i: v[i], out))
-            if len(c.history) > self.capacity:
-                del c.history[: len(c.history) - self.capacity]
+        offsets = np.concatenate([controls.offsets, np.zeros((spare,) + controls.offsets.shape[1:], np.float32)])
+        yaw = np.concatenate([controls.yaw, np.zeros((spare,) + controls.yaw.shape[1:], np.float32)])
+        stand = np.concatenate([controls.stand, np.ones(spare, np.float32)])
+        self._states, self._lock_states, out = self._step(self._runtimes, self._states, self._lock_states,
+                                                          (offsets, yaw, stand), np.bool_(self.foot_lock))
+        out = jax.device_get(out)
+        self._where = (np.asarray(out.origin) / self.upm, np.asarray(out.yaw))
+        self._history.append((self.frames, out.out))
+        if len(self._history) > self.capacity:
+            del self._history[: len(self._history) - self.capacity]
         self.frames += 1
-        # the predicted future (x, z in the character frame at the six samples) in the world, metres
-        fx, fz = loop.rotate_xz(future[:, 0], future[:, 1], yaw[:, None])
-        world = np.stack([np.asarray(fx) + origin[:, :1], np.asarray(fz) + origin[:, 1:]], axis=-1)
-        # the LPN layout's bones are the skeleton's joints, then the hand end sites: draw the joints
-        positions = np.asarray(out.positions)[:, :self.num_joints]
-        if self.foot_lock:  # feet locked while planted, frame by frame (jaxstyle.output.footlock)
-            params, program = self._lock
-            if self._lock_states is None or len(self._lock_states.started) != len(positions):
-                self._lock_states = jax.vmap(lambda _: footlock.init_state())(jnp.arange(len(positions)))
-            self._lock_states, locked = program(params, self._lock_states, positions, self._labels(out))
-            positions = np.asarray(locked)
         ms = 1e3 * (time.perf_counter() - t0)
-        return Frame(positions / self.upm, origin / self.upm, yaw, world / self.upm, ms)
-
-    def _labels(self, out) -> np.ndarray:
-        """``(C, 2, 2)`` contact labels per character and point: the network's (LPN foot labels, the
-        2018 layout's heel and toe outputs), zeros when it predicts none."""
-        from jaxstyle.output import export
-
-        labels = export.network_contacts(out, self.num_joints)  # characters on the leading axis
-        if labels is None:
-            return np.zeros((len(self.characters), 2, 2), np.float32)
-        return footlock.labels_per_point(labels)
+        return Frame(np.asarray(out.positions[:n]) / self.upm, self._where[0][:n], self._where[1][:n],
+                     np.asarray(out.future[:n]) / self.upm, ms)
 
     def recording(self, seconds: float, character: int = 0) -> Rollout | lpn_controller.LPNRollout:
         """The last ``seconds`` of ``character`` as a :class:`Rollout` (2022: an
         :class:`~jaxstyle.control.lpn_controller.LPNRollout`; frames on the leading axis), ready
         for :mod:`jaxstyle.output.export`."""
-        history = self.characters[character].history
-        n = min(len(history), int(round(seconds * self.fps)))
+        since = self.characters[character].since
+        frames = [out for k, out in self._history if k >= since]
+        n = min(len(frames), int(round(seconds * self.fps)))
         if n < 2:
             raise PlayError("nothing recorded yet: let the character walk a moment first")
-        return jax.tree.map(lambda *v: np.stack(v), *history[-n:])
+        return jax.tree.map(lambda *v: np.stack([x[character] for x in v]), *frames[-n:])
 
 
 def save_recording(rollout: Rollout | lpn_controller.LPNRollout, model: AnyPlayModel, path: str | Path, *,
