@@ -70,16 +70,17 @@ def _data(T, mc, seed=0):
                        tuple(f"s{s}" for s in range(mc.num_styles)), bones)
 
 
-def _step_runner(name: str, steps: int, batch: int, compute_dtype: str | None):
+def _step_runner(name: str, steps: int, batch: int, compute_dtype: str | None, mc=None):
     """``(run, state)``: ``run(state) -> state`` does ``steps`` training steps of Table 2's ``name``
-    with the training code on ``sys.path`` (today's or the archived one)."""
+    (at the paper's sizes, or the model config ``mc``) with the training code on ``sys.path``
+    (today's or the archived one)."""
     import jax
     import jax.numpy as jnp
 
     from jaxstyle.mason2022 import train as T
     from jaxstyle.nn.style_models import StyleModelConfig
 
-    mc = StyleModelConfig.paper(name, NUM_STYLES)
+    mc = mc or StyleModelConfig.paper(name, NUM_STYLES)
     lr = 1e-4 * (batch / 32) ** 0.5
     config = T.LPNTrainConfig(model=mc, batch_size=batch, learning_rate=lr)
     data = _data(T, mc)
