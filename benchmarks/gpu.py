@@ -3,7 +3,7 @@ scale, LPN-FiLM training throughput and many live characters. Writes ``gpu.json`
 (a markdown table) to ``--out`` and prints the table.
 
     python benchmarks/gpu.py [--out runs/bench_gpu]            # the full size (a GPU: about 5 min)
-    python benchmarks/gpu.py --small [--out DIR]               # a reduced size, any machine (CPU: < 1 min)
+    python benchmarks/gpu.py --small [--out DIR]               # a reduced size, any machine (CPU: ~1 min)
 
 Sections (``--sections``, default all; each is timed after its own compile, which is reported
 apart, and a failing section is recorded with its error while the others run):
@@ -26,9 +26,9 @@ apart, and a failing section is recorded with its error while the others run):
   paper-size LPN-FiLM (hidden 512): p50 / p95 ms per frame, frames per second, character-frames
   per second.
 
-``--small``: a PFNN of hidden 64 and rank 8 for 4 styles x 2 rates of 200 rows and 5 epochs, an
-LPN-FiLM of hidden 32 (generator on 48 x 300 clips, 8 filters) for 20 steps, 64 characters: the
-same code paths at a size a CPU runs in under a minute (the test suite runs it).
+``--small``: a PFNN of hidden 64 and rank 8 for 2 styles x 2 rates of 200 rows and 2 epochs, an
+LPN-FiLM of hidden 32 (generator on 48 x 300 clips, 8 filters) for 20 steps, 16 characters: the
+same code paths at a size a CPU runs in about a minute (the test suite runs it).
 """
 
 from __future__ import annotations
@@ -61,8 +61,8 @@ from jaxstyle.train import scan  # noqa: E402
 
 FULL = {"styles": 57, "rates": (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8), "frames": 600, "epochs": 100,
         "lpn_steps": 810, "lpn_batches": (32, 128), "characters": 1024, "frames_timed": 200}
-SMALL = {"styles": 4, "rates": (0.1, 0.5), "frames": 200, "epochs": 5,
-         "lpn_steps": 20, "lpn_batches": (32,), "characters": 64, "frames_timed": 30}
+SMALL = {"styles": 2, "rates": (0.1, 0.5), "frames": 200, "epochs": 2,
+         "lpn_steps": 20, "lpn_batches": (32,), "characters": 16, "frames_timed": 10}
 MODES = {"paper": {"adapter_dropout_only": False, "matmul_dtype": "float32"},
          "fast": {"adapter_dropout_only": True, "matmul_dtype": "bfloat16"}}
 
@@ -236,7 +236,7 @@ def run(small: bool, sections, out: Path) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--small", action="store_true", help="a reduced size that a CPU runs in under a minute")
+    parser.add_argument("--small", action="store_true", help="a reduced size that a CPU runs in about a minute")
     parser.add_argument("--out", type=Path, default=Path("runs/bench_gpu"), help="folder for gpu.json and gpu.md")
     parser.add_argument("--sections", nargs="+", choices=("sweep", "lpn", "live"), default=["sweep", "lpn", "live"])
     args = parser.parse_args(argv)

@@ -144,9 +144,9 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
     assert 0.5 < np.linalg.norm(target - start) < 10.0, (start, target)
     toward = (target - start) / np.linalg.norm(target - start)
     assert wanted @ toward > 0.999 * np.linalg.norm(wanted), (wanted, toward)
-    time.sleep(1.5)
-    now = server.session.origin()[0]
-    assert np.linalg.norm(target - now) < np.linalg.norm(target - start) - 0.1, (start, now, target)
+    wait_for(lambda: np.linalg.norm(target - server.session.origin()[0]) < np.linalg.norm(target - start) - 0.1,
+             PAGE_SECONDS, "the character to walk 0.1 m towards the target",
+             detail=lambda: f"start {start}, now {server.session.origin()[0]}, target {target}")
     # a key: D walks to the camera's right
     page.keyboard.press("d")
     steering = wait_for(lambda: server.session.characters[0].steering.mode == "direction"
@@ -160,8 +160,9 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
     wait_for(lambda: server.session.characters[0].style == other, PAGE_SECONDS, "the style switch")
     wait_for(lambda: f"Style: {other}" in page.inner_text("body"), PAGE_SECONDS, "the page to show it",
              detail=lambda: f"the page shows {page.inner_text('body')[:300]!r}")
-    # a screenshot that shows something
-    time.sleep(0.5)
+    # a screenshot that shows something, once the page has drawn the switched style for a few frames
+    frames = server.session.frames
+    wait_for(lambda: server.session.frames > frames + 10, PAGE_SECONDS, "the render loop to go on")
     png = page.screenshot(path=str(tmp_path / "play.png"))
     canvas = page.locator("canvas").first.screenshot()
     assert not_blank(png) > 5.0 and not_blank(canvas) > 2.0
@@ -219,7 +220,8 @@ def test_learn_a_style_live_and_record(browser, tmp_path):
         page.get_by_label("Style", exact=True).click()
         page.get_by_role("option", name="Proud_FW", exact=True).click()
         wait_for(lambda: server.session.characters[0].style == "Proud_FW", PAGE_SECONDS, "the learned style to play")
-        time.sleep(2.0)
+        frames = server.session.frames
+        wait_for(lambda: server.session.frames > frames + 90, PAGE_SECONDS, "1.5 s of the learned style to record")
         page.get_by_text("Save the last seconds").click()
         wait_for(lambda: server.last_recording, 120, "the recording")
         assert {f.suffix for f in server.last_recording} == {".bvh", ".npz", ".gif"}

@@ -32,7 +32,7 @@ def run(args, run: Run) -> None:
 
     check_positive(args, "sets", "frames", "sweep_epochs", "hidden")
     if (run.dir / "base" / "base.json").is_file():
-        base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache", progress=False, log=lambda _: None)
+        base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache", progress=False)
         model, params, what = base.model, base.params, f"the base of {run.dir / 'base'}"
     else:
         model = pfnn.PFNNConfig(hidden_size=args.hidden)

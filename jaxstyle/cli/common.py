@@ -121,12 +121,17 @@ _UNSAVED = ("handler", "debug", "quiet")
 
 class Run:
     """A run folder: ``say`` prints and appends to ``log.txt``; the command's settings are saved in
-    ``config.json`` under the command's name (earlier commands' entries are kept)."""
+    ``config.json`` under the command's name (earlier commands' entries are kept). ``writer=False``
+    (a process other than 0 of a ``--distributed`` run) writes and prints nothing."""
 
-    def __init__(self, directory: Path, command: str, settings: dict, argv: Sequence[str]):
+    def __init__(self, directory: Path, command: str, settings: dict, argv: Sequence[str], *, writer: bool = True):
         self.dir = Path(directory)
-        self.dir.mkdir(parents=True, exist_ok=True)
         self.command = command
+        self.writer = writer
+        if not writer:  # another process of a --distributed run: process 0 writes and reports
+            self._log = None
+            return
+        self.dir.mkdir(parents=True, exist_ok=True)
         self.save_settings(settings)
         self._log = open(self.dir / "log.txt", "a", encoding="utf-8")
         stamp = datetime.datetime.now().isoformat(timespec="seconds")
@@ -148,12 +153,15 @@ class Run:
         os.replace(tmp, config_path)
 
     def say(self, text: str = "") -> None:
+        if self._log is None:
+            return
         print(text, flush=True)
         self._log.write(text + "\n")
         self._log.flush()
 
     def close(self) -> None:
-        self._log.close()
+        if self._log is not None:
+            self._log.close()
 
 
 # --- argument parsing ---------------------------------------------------------------------------
@@ -209,6 +217,34 @@ def add_common(parser: argparse.ArgumentParser, run_default: Path | None = DEFAU
     parser.add_argument("--config", type=Path, help="TOML file of settings (keys = long flag names); flags win")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--debug", action="store_true", help="show tracebacks instead of one-line errors")
+
+
+def add_distributed_args(p: argparse.ArgumentParser) -> None:
+    """``--distributed`` and its coordinator, process count and id (``jaxstyle.train.shard.initialize``)."""
+    p.add_argument("--distributed", action="store_true",
+                   help="one of several processes (hosts, or GPUs of one host) running this same command: "
+                        "jax.distributed joins them, the work is split over all their devices, process 0 writes "
+                        "(docs/scale.md)")
+    p.add_argument("--coordinator", metavar="HOST:PORT",
+                   help="with --distributed: process 0's address (default: JAX_COORDINATOR_ADDRESS or the cluster's)")
+    p.add_argument("--num-processes", type=int,
+                   help="with --distributed: how many processes (default: JAX_NUM_PROCESSES or the cluster's)")
+    p.add_argument("--process-id", type=int,
+                   help="with --distributed: this process, 0 .. count - 1 (default: JAX_PROCESS_ID or the cluster's)")
+
+
+def start_distributed(args) -> bool:
+    """Join the other processes when ``--distributed`` is given (before anything uses a device);
+    returns whether this process writes the run folder (process 0, or the only process)."""
+    if not getattr(args, "distributed", False):
+        for flag in ("coordinator", "num_processes", "process_id"):
+            if getattr(args, flag, None) is not None:
+                raise CLIError(f"--{flag.replace('_', '-')} needs --distributed")
+        return True
+    from jaxstyle.train import shard
+
+    shard.initialize(args.coordinator, args.num_processes, args.process_id)
+    return shard.is_writer()
 
 
 def add_joint_map_arg(p: argparse.ArgumentParser) -> None:
@@ -282,6 +318,12 @@ def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds:
 # --- helpers ------------------------------------------------------------------------------------
 
 def progress(args) -> bool:
+    """Progress bars: unless ``--quiet``, and only on the process that reports (``--distributed``)."""
+    if getattr(args, "distributed", False):
+        from jaxstyle.train import shard
+
+        if not shard.is_writer():
+            return False
     return not args.quiet
 
 

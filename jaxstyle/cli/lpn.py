@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 import time
 from pathlib import Path
 
@@ -12,6 +14,7 @@ from jaxstyle.cli.common import (
     LazyDefault,
     Run,
     add_common,
+    add_distributed_args,
     add_joint_map_arg,
     check_positive,
     elapsed,
@@ -61,24 +64,42 @@ def add_arguments(p) -> None:
     p.add_argument("--clip-range", type=float, nargs=2, metavar=("START", "END"), help="seconds of each --clip")
     p.add_argument("--asymmetric", action="store_true", help="do not mirror the --clip files")
     p.add_argument("--devices", help="train data-parallel over 'all' devices or that many (default: one)")
-    p.add_argument("--distributed", action="store_true",
-                   help="multi-host: call jax.distributed.initialize() first (start the same command on every host)")
     p.add_argument("--batch-size", type=int, default=32,
                    help="minibatch (paper: 32); Adam's rate scales by sqrt(batch / 32) from 1e-4")
     p.add_argument("--bf16", action="store_true", help="bfloat16 products, float32 accumulation and weights")
     add_joint_map_arg(p)
+    add_distributed_args(p)
     add_common(p)
 
 
 def run(args, run: Run) -> None:
+    if run.writer:
+        _sync(args)  # the others have copied the run's model before this process changes it
+        _run(args, run, run.dir / "lpn", run.dir / "cache")
+        return
+    # another process of a --distributed run: the same work, its files in a folder of its own
+    # (removed at the end), starting from a copy of the run's model so that every process
+    # resumes the same state; process 0 writes the run folder
+    with tempfile.TemporaryDirectory(prefix="jaxstyle-process-") as scratch:
+        out = Path(scratch) / "lpn"
+        if (run.dir / "lpn").is_dir():
+            shutil.copytree(run.dir / "lpn", out)
+        _sync(args)
+        _run(args, run, out, None)
+
+
+def _sync(args) -> None:
+    if args.distributed:
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices("jaxstyle lpn: every process has the run's model")
+
+
+def _run(args, run: Run, out: Path, cache: Path | None) -> None:
     from jaxstyle.data import folders
     from jaxstyle.mason2022 import pipeline
 
     check_positive(args, "epochs", "hidden", "generator_hidden", "filters")
-    if args.distributed:  # before anything starts JAX's backends
-        from jaxstyle.train import shard
-
-        shard.initialize()
     if args.finetune_steps < 0:
         raise CLIError(f"--finetune-steps must be >= 0, got {args.finetune_steps}")
     if args.clip and args.finetune_steps == 0:
@@ -94,25 +115,25 @@ def run(args, run: Run) -> None:
     new_text = ", ".join(new_styles) or "your --clip files"
     run.say(f"lpn on {machine()}: training styles {', '.join(styles)}; new styles {new_text}")
     data = pipeline.build_data(root, styles, new_styles, gaits=args.gaits, max_seconds=args.max_seconds,
-                               cache=run.dir / "cache", progress=progress(args), joint_map=joint_map(args))
+                               cache=cache, progress=progress(args), joint_map=joint_map(args))
     if args.clip:
         data = pipeline.user_clip_data(data, args.clip, mirror=not args.asymmetric,
                                        seconds=tuple(args.clip_range) if args.clip_range else None,
-                                       joint_map=joint_map(args), cache=run.dir / "cache", progress=progress(args))
+                                       joint_map=joint_map(args), cache=cache, progress=progress(args))
         run.say(f"new styles from your clips: {', '.join(data.new.styles)} ({len(data.new.specs)} clip(s), mirrors "
                 f"included, {int((data.new.split == 0).sum()):,} training rows)")
     config = pipeline.model_config(data.base, hidden=args.hidden, generator_hidden=args.generator_hidden,
                                    filters=args.filters)
     t0 = time.perf_counter()
-    model = pipeline.train_model(data, config, run.dir / "lpn", epochs=args.epochs, progress=progress(args),
+    model = pipeline.train_model(data, config, out, epochs=args.epochs, progress=progress(args),
                                  **_speed_options(args))
     run.say(f"LPN-FiLM ({args.hidden} hidden, {args.epochs} epochs, {int((data.base.split == 0).sum()):,} training "
             f"rows) ready in {elapsed(t0)}: {run.dir / 'lpn'}")
     for line in pipeline.losses_table(model.data.styles, pipeline.model_losses(model)):
         run.say(line)
-    lines, files = [], [run.dir / "lpn", run.dir / "lpn" / "results.md"]
+    lines, files = [], [out, out / "results.md"]
     if args.clip:
-        result, checked, paths = pipeline.finetune_clips(model, data, run.dir / "lpn", rates=args.rates,
+        result, checked, paths = pipeline.finetune_clips(model, data, out, rates=args.rates,
                                                          steps=args.finetune_steps, progress=progress(args))
         lines = [*pipeline.check_table(result, checked), "", *pipeline.finetune_table(result, checked=True)]
         for line in ["", pipeline.finetune_summary(result) + "; then a closed-loop check of every pair", *lines]:
@@ -126,9 +147,9 @@ def run(args, run: Run) -> None:
         for line in ["", pipeline.finetune_summary(result), *lines]:
             run.say(line)
         run.say("chosen rates: " + ", ".join(f"{s} {result.chosen_rate(s):g}" for s in result.styles))
-        files += list(pipeline.write_finetune(result, run.dir / "lpn").values())
-        files.append(pipeline.film_figure(model, result, run.dir / "lpn" / "figure11.png"))
-    (run.dir / "lpn" / "results.md").write_text("\n".join(lines) + "\n")
+        files += list(pipeline.write_finetune(result, out).values())
+        files.append(pipeline.film_figure(model, result, out / "figure11.png"))
+    (out / "results.md").write_text("\n".join(lines) + "\n")
     written(run, "written", files)
 
 
@@ -148,6 +169,8 @@ def _speed_options(args) -> dict:
             shard.check_batch(shard.data_mesh(devices), args.batch_size)
         except ValueError as e:
             raise CLIError(f"--devices {args.devices}: {e}") from None
+    if devices is None and args.distributed:
+        devices = "all"  # every process's devices
     options = {"devices": devices, "compute_dtype": "bfloat16" if args.bf16 else "float32"}
     if args.batch_size != train_lpn.PAPER_BATCH:
         scaled = train_lpn.with_batch_size(train_lpn.LPNTrainConfig(), args.batch_size)

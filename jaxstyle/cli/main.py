@@ -44,6 +44,7 @@ from jaxstyle.cli.common import (
     file_in_the_way,
     one_line,
     resolve_defaults,
+    start_distributed,
 )
 
 COMMANDS = (demo, data, train_base, sweep, lpn, synthesize, render, bench, play)
@@ -250,13 +251,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                 and not (Path(args.run) / "base" / "base.json").is_file()):
             raise CLIError(f"no base model in {Path(args.run) / 'base'}: train one first with "
                            "`jaxstyle train-base --data PATH --run RUN` (or run `jaxstyle demo`)")
+        writer = start_distributed(args)
         if "run" in vars(args):
-            ensure_folder(Path(args.run), "--run")
+            if writer:
+                ensure_folder(Path(args.run), "--run")
             try:
-                run = Run(args.run, name, vars(args), argv)
+                run = Run(args.run, name, vars(args), argv, writer=writer)
             except OSError as e:
                 raise CLIError(f"--run {args.run}: {describe_os_error(e)}") from None
         handler(args, run)
+        if getattr(args, "distributed", False):
+            from jaxstyle.train import shard
+
+            shard.finish()
     except OSError as e:  # a file or folder the command could not read or write
         if args.debug:
             raise

@@ -10,6 +10,7 @@ from jaxstyle.cli.common import (
     CLIError,
     Run,
     add_common,
+    add_distributed_args,
     add_joint_map_arg,
     add_sweep_args,
     check_positive,
@@ -40,6 +41,7 @@ def add_arguments(p) -> None:
     p.add_argument("--clip-range", type=float, nargs=2, metavar=("START", "END"), help="seconds of each --clip")
     p.add_argument("--asymmetric", action="store_true", help="do not mirror the --clip files")
     add_joint_map_arg(p)  # default: the base's
+    add_distributed_args(p)
     add_common(p)
     add_sweep_args(p, epochs=100)
 
@@ -51,7 +53,8 @@ def sweep_and_report(run: Run, args, base, specs):
     t0 = time.perf_counter()
     result, paths, shots = pipeline.run_sweep(base, specs, run.dir / "sweep", rates=args.rates,
                                               epochs=args.sweep_epochs, adapter_dropout_only=args.adapter_dropout_only,
-                                              cache=run.dir / "cache", progress=progress(args))
+                                              cache=run.dir / "cache" if run.writer else None,
+                                              progress=progress(args), write=run.writer)
     pairs = len(result.styles) * len(result.rates)
     run.say(f"sweep: {len(result.styles)} sets x {len(result.rates)} rates = {pairs} adapters, {args.sweep_epochs} "
             f"epochs each, in one compiled program: {result.seconds['sweep']:.1f} s; checks "
@@ -66,7 +69,8 @@ def run(args, run: Run) -> None:
 
     check_positive(args, "seconds", "sweep_epochs")
     user_map = joint_map(args)
-    base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache", progress=progress(args), log=lambda _: None)
+    base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache" if run.writer else None,
+                              progress=progress(args))
     root = Path(base.settings.data)
     jmap = user_map or base.settings.joint_map
     if args.clip:

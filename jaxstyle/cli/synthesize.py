@@ -128,7 +128,7 @@ def run(args, run: Run) -> None:
     if args.blend_weights is not None or args.model_dir is not None:
         raise CLIError("--blend-weights and --model-dir are for the 2022 models (--model lpn-film ...); the 2018 "
                        "blend is --blend (50/50 of the first two few-shot sets)")
-    base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache", progress=progress(args), log=lambda _: None)
+    base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache", progress=progress(args))
     chosen, shots = pipeline.load_sweep(run.dir / "sweep", base, cache=run.dir / "cache")
     sets = args.sets if args.sets is not None else pipeline.default_sets(chosen)
     base_styles = args.base_styles or list(base.dataset.styles[:1])

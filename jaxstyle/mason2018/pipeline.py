@@ -53,7 +53,14 @@ from jaxstyle.data.folders import (  # noqa: F401  (re-exported: the pipeline's 
 from jaxstyle.data.pfnn_features import PFNNLayout, valid_frames
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import fewshot, selection
-from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, finetune_adapter, train, with_contacts
+from jaxstyle.mason2018.train import (
+    TrainConfig,
+    data_from_dataset,
+    finetune_adapter,
+    load_trained,
+    train,
+    with_contacts,
+)
 from jaxstyle.motion import Motion
 from jaxstyle.motion.bvh import frame_rate
 from jaxstyle.motion.skeleton import JointMap
@@ -185,16 +192,7 @@ def train_base(settings: BaseSettings, directory: str | os.PathLike, *, cache: s
                        if getattr(old, f.name) != getattr(settings, f.name)]
             raise PipelineError(f"{directory} holds a base trained with other settings ({', '.join(changed)} differ); "
                                 "use another --run folder or delete that one")
-    root = Path(settings.data)
-    dataset = build(clip_specs(root, settings.styles, settings.gaits, settings.max_seconds, settings.joint_map), cache,
-                    progress)
-    if settings.contacts:
-        dataset = with_contacts(dataset)
-    data = data_from_dataset(dataset)
-    layout = PFNNLayout((dataset.inputs.shape[1] - 48) // 6, contacts=settings.contacts)
-    model = pfnn.PFNNConfig(input_size=layout.input_size, output_size=layout.output_size,
-                            hidden_size=settings.hidden, rank=settings.rank)
-    config = TrainConfig(model=model, epochs=settings.epochs, half_mirrored=True, seed=settings.seed)
+    dataset, data, model, config = _base_parts(settings, cache, progress)
     directory.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json_text(settings.to_json()))
@@ -210,10 +208,26 @@ def train_base(settings: BaseSettings, directory: str | os.PathLike, *, cache: s
     return Base(state["params"], state["adapters"], (x_norm, y_norm), model, dataset, skeleton, settings)
 
 
-def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None = None, progress: bool = True,
-              log: Callable[[str], None] = print) -> Base:
-    """The base trained into ``directory`` by :func:`train_base` (finishing its training if it was
-    interrupted)."""
+def _base_parts(settings: BaseSettings, cache, progress: bool):
+    """The base's dataset, training arrays, network sizes and training config from its settings."""
+    root = Path(settings.data)
+    dataset = build(clip_specs(root, settings.styles, settings.gaits, settings.max_seconds, settings.joint_map), cache,
+                    progress)
+    if settings.contacts:
+        dataset = with_contacts(dataset)
+    data = data_from_dataset(dataset)
+    layout = PFNNLayout((dataset.inputs.shape[1] - 48) // 6, contacts=settings.contacts)
+    model = pfnn.PFNNConfig(input_size=layout.input_size, output_size=layout.output_size,
+                            hidden_size=settings.hidden, rank=settings.rank)
+    config = TrainConfig(model=model, epochs=settings.epochs, half_mirrored=True, seed=settings.seed)
+    return dataset, data, model, config
+
+
+def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None = None, progress: bool = True
+              ) -> Base:
+    """The base trained into ``directory`` by :func:`train_base`, read only: nothing is trained or
+    written there (the dataset cache, when given, may be filled). An unfinished base (an
+    interrupted ``jaxstyle train-base``) is refused with the command that finishes it."""
     directory = Path(directory)
     path = _settings_file(directory)
     if not path.is_file():
@@ -222,7 +236,18 @@ def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None =
     settings = BaseSettings.from_json(json.loads(path.read_text()))
     if not Path(settings.data).is_dir():
         raise PipelineError(f"the base in {directory} was trained on {settings.data}, which is gone")
-    return train_base(settings, directory, cache=cache, progress=progress, log=log)
+    dataset, _, model, config = _base_parts(settings, cache, progress)
+    try:
+        state = load_trained(config, dataset.styles, directory)
+    except FileNotFoundError:
+        state = None
+    done = 0 if state is None else int(state["epoch"])
+    if done < settings.epochs:
+        raise PipelineError(f"the base in {directory} is unfinished ({done} of {settings.epochs} epochs): finish it "
+                            f"with `jaxstyle train-base --run {directory.parent}` and the same settings")
+    x_norm, y_norm = dataset.normalisers()
+    skeleton = datasets.load_clip(dataset.specs[0], fps=60.0)
+    return Base(state["params"], state["adapters"], (x_norm, y_norm), model, dataset, skeleton, settings)
 
 
 # --- few-shot sweep -----------------------------------------------------------------------------
@@ -230,12 +255,19 @@ def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None =
 def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLike, *,
               rates: Sequence[float] = DEFAULT_RATES, epochs: int = 100, adapter_dropout_only: bool = False,
               matmul_dtype: str = "float32", skeleton: Motion | None = None, cache: str | os.PathLike | None = None,
-              progress: bool = True) -> tuple[selection.SweepResult, dict[str, Path], datasets.Dataset]:
+              progress: bool = True, shard: bool | None = None, write: bool = True
+              ) -> tuple[selection.SweepResult, dict[str, Path], datasets.Dataset]:
     """Fine-tune a new adapter per (few-shot set of ``specs``, rate) on the frozen base in one compiled
     sweep, validate and check them closed-loop (on ``skeleton``, default the base's), choose a rate
     per set, and write the report to ``directory`` with ``sweep.json`` (the sets' clips). Returns the
     result, the report's paths and the few-shot dataset. ``adapter_dropout_only`` and
-    ``matmul_dtype``: see :class:`jaxstyle.mason2018.fewshot.SweepConfig`."""
+    ``matmul_dtype``: see :class:`jaxstyle.mason2018.fewshot.SweepConfig`.
+
+    ``shard``: spread the sets over all devices (default: when ``jax.distributed`` runs several
+    processes; every process then calls this alike and gets the whole result). ``write=False``
+    writes nothing (the report's paths come back empty): the other processes of a multi-process run."""
+    if shard is None:
+        shard = jax.process_count() > 1
     if not specs:
         raise PipelineError("no few-shot clips")
     if epochs < 1 or not rates or any(not 0 <= r < 1 for r in rates):
@@ -250,7 +282,9 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
     config = fewshot.SweepConfig(model=base.model, epochs=epochs, rates=tuple(float(r) for r in rates),
                                  adapter_dropout_only=adapter_dropout_only, matmul_dtype=matmul_dtype)
     result = selection.fewshot_sweep(base.params, base.normalisers, shots, skeleton or base.skeleton, config,
-                                     progress=progress)
+                                     progress=progress, shard=shard)
+    if not write:
+        return result, {}, shots
     paths = selection.write_report(result, directory, config)
     meta = {"specs": [s.to_json() for s in specs], "rates": list(config.rates), "epochs": epochs,
             "styles": list(result.styles), "seconds": result.seconds}

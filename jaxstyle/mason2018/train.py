@@ -27,6 +27,7 @@ from jaxstyle.data.batching import balanced_batches
 from jaxstyle.mason2018 import fewshot
 from jaxstyle.nn import pfnn
 from jaxstyle.train import scan
+from jaxstyle.train.checkpoint import Checkpointer
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,6 +208,21 @@ def train(data: TrainData, config: TrainConfig, directory: str | Path | None = N
                     plan_epoch, directory=directory, run_config={"train": config, "styles": list(data.styles)},
                     log_every=config.log_every, end_epoch=end_epoch, progress=progress,
                     stop_after_epochs=stop_after_epochs)
+
+
+def load_trained(config: TrainConfig, styles, directory: str | Path) -> dict:
+    """The newest good state that :func:`train` saved in ``directory`` for ``config`` and ``styles``
+    (read only: nothing is trained or written). A folder without a checkpoint raises
+    ``FileNotFoundError``; one of another config, ``ValueError``."""
+    if not (Path(directory) / "config.json").is_file():
+        raise FileNotFoundError(f"no checkpoint in {directory}")
+    ckpt = Checkpointer(directory, {"train": config, "styles": list(styles)})
+    try:
+        if ckpt.latest_step() is None:
+            raise FileNotFoundError(f"no checkpoint in {directory}")
+        return ckpt.restore(init_state(jax.random.PRNGKey(config.seed), config, len(styles)))
+    finally:
+        ckpt.close()
 
 
 def _log_row(train_loss: float, val: np.ndarray, styles) -> dict:

@@ -324,10 +324,13 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
                 "train_bll": f"{out[:, 2].mean():.6f}", "val_mse": f"{np.nanmean(val['mse']):.6f}",
                 "val_bll": f"{np.nanmean(val['bll']):.6f}"}
 
-    return scan.fit(init_state(jax.random.PRNGKey(config.seed), config), config.epochs, plan_epoch,
-                    directory=directory, run_config=_run_config(config, data.styles, compute_dtype),
-                    log_every=config.log_every, end_epoch=end_epoch, progress=progress,
-                    stop_after_epochs=stop_after_epochs)
+    state = scan.fit(init_state(jax.random.PRNGKey(config.seed), config), config.epochs, plan_epoch,
+                     directory=directory, run_config=_run_config(config, data.styles, compute_dtype),
+                     log_every=config.log_every, end_epoch=end_epoch, progress=progress,
+                     stop_after_epochs=stop_after_epochs)
+    if jax.process_count() > 1:  # replicated over several processes: this process's copy, for what follows
+        state = jax.tree.map(jnp.asarray, shard.gather(state))
+    return state
 
 
 def _run_config(config: LPNTrainConfig, styles: Sequence[str], compute_dtype: str = "float32") -> dict:

@@ -46,7 +46,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any, Callable, NamedTuple, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -239,13 +239,12 @@ def learned_root(run_dir: str | Path) -> Path:
     return Path(run_dir) / PLAY_DIR / "styles"
 
 
-def load_model(run_dir: str | Path, *, progress: bool = False, log: Callable[[str], None] = lambda _: None
-               ) -> PlayModel:
+def load_model(run_dir: str | Path, *, progress: bool = False) -> PlayModel:
     """The base of ``RUN/base``, its base styles, the few-shot styles of ``RUN/sweep`` (their chosen
     rates) and the styles learned in earlier sessions (``RUN/play/styles``). A folder without a
     base raises :class:`jaxstyle.data.folders.PipelineError` naming it."""
     run_dir = Path(run_dir)
-    base = pipeline.load_base(run_dir / "base", cache=run_dir / "cache", progress=progress, log=log)
+    base = pipeline.load_base(run_dir / "base", cache=run_dir / "cache", progress=progress)
     styles: dict[str, Style] = {}
     for s, name in enumerate(base.dataset.styles):
         styles[name] = Style(name, "base", None, jax.tree.map(lambda v, s=s: v[s], base.adapters))
@@ -313,8 +312,7 @@ def lpn_play_model(loaded: synthesis2022.Loaded, run_dir: str | Path | None = No
     return LPNPlayModel(loaded, styles, upm, speed, Path(run_dir if run_dir is not None else loaded.directory.parent))
 
 
-def load_any(run_dir: str | Path, key: str | None = None, *, progress: bool = False,
-             log: Callable[[str], None] = lambda _: None) -> AnyPlayModel:
+def load_any(run_dir: str | Path, key: str | None = None, *, progress: bool = False) -> AnyPlayModel:
     """The model ``key`` of the run folder (:func:`available_models`; default: the 2018 model when
     there is one, else the 2022 one). A folder without it raises one line naming what it has."""
     run_dir = Path(run_dir)
@@ -322,7 +320,7 @@ def load_any(run_dir: str | Path, key: str | None = None, *, progress: bool = Fa
     if key is None:
         key = next(iter(have), PFNN)
     if key == PFNN:
-        return load_model(run_dir, progress=progress, log=log)
+        return load_model(run_dir, progress=progress)
     if key not in have:
         raise PlayError(f"{run_dir} has no trained {key} model (it has: {', '.join(have) or 'none'}); train one with "
                         f"`jaxstyle lpn --run {run_dir}` or `jaxstyle demo --model {key} --run {run_dir}`")

@@ -121,8 +121,17 @@ class Checkpointer:
         self.restored_step: int | None = None
 
     def _open(self):
-        return ocp.CheckpointManager(self.steps_dir,
-                                     options=ocp.CheckpointManagerOptions(max_to_keep=self._max_to_keep))
+        # each process reads and writes its checkpoints alone: under jax.distributed only process 0
+        # writes (jaxstyle.train.shard.is_writer) and no other process takes part in its saves
+        if jax.process_count() == 1:
+            return ocp.CheckpointManager(self.steps_dir,
+                                         options=ocp.CheckpointManagerOptions(max_to_keep=self._max_to_keep))
+        me = jax.process_index()
+        alone = ocp.options.MultiprocessingOptions(primary_host=me, active_processes={me},
+                                                   barrier_sync_key_prefix=f"jaxstyle-process-{me}")
+        self.steps_dir.mkdir(parents=True, exist_ok=True)  # orbax creates it only for all processes together
+        return ocp.CheckpointManager(self.steps_dir, options=ocp.CheckpointManagerOptions(
+            max_to_keep=self._max_to_keep, multiprocessing_options=alone, create=False))
 
     def latest_step(self) -> int | None:
         return self._manager.latest_step()
@@ -138,6 +147,8 @@ class Checkpointer:
         if bad:
             raise NonFiniteError(f"refusing to save checkpoint step {step} in {self.steps_dir}: "
                                  f"{', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''} hold NaN or infinity")
+        if jax.process_count() > 1:  # arrays replicated over several processes' devices: this process's copy
+            state = jax.tree.map(np.asarray, state)
         self._manager.save(step, args=ocp.args.StandardSave(state))
         self._manager.wait_until_finished()
 
@@ -146,7 +157,10 @@ class Checkpointer:
         folder = self.steps_dir / str(step)
         if folder.is_dir() and not any(folder.iterdir()):
             raise CheckpointError("the step folder is empty")
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, like)
+        if jax.process_count() > 1:  # restored on this process alone, as host arrays
+            abstract = jax.tree.map(lambda v: np.zeros(np.shape(v), getattr(v, "dtype", np.float32)), like)
+        else:
+            abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, like)
         try:
             state = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
         except Exception as e:  # orbax/tensorstore raise many types for damaged files

@@ -37,6 +37,7 @@ import optax
 from jaxstyle.train import runlog
 from jaxstyle.train.checkpoint import Checkpointer, NonFiniteError, non_finite_leaves
 from jaxstyle.train.defaults import DEFAULT_RATES  # noqa: F401  (re-exported)
+from jaxstyle.train.shard import gather
 
 
 def sweep_batches(rows_per_style: Sequence[np.ndarray], epochs: int, batch_size: int, seed: int = 0
@@ -185,6 +186,8 @@ def grid_sweep(loss_fn, trainable_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT,
       progress / desc: a progress bar (moving between chunks) and its title.
       shard: spread the set axis over all devices (a 1-D mesh, ``frozen`` replicated), padded
         with fully masked sets to a multiple of the device count; same result as one device.
+        Under ``jax.distributed`` the devices of every process take part (every process calls
+        this with the same arguments) and every process gets the whole result back.
 
     Returns the trained tree ``(G, R, ...)`` and per-step losses ``(G, R, T)``.
     """
@@ -214,8 +217,13 @@ def grid_sweep(loss_fn, trainable_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT,
     if shard:
         from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-        grid = NamedSharding(Mesh(np.array(jax.devices()), ("grid",)), PartitionSpec("grid"))
+        mesh = Mesh(np.array(jax.devices()), ("grid",))
+        grid, everywhere = NamedSharding(mesh, PartitionSpec("grid")), NamedSharding(mesh, PartitionSpec())
+        if jax.process_count() > 1:  # host copies, the same on every process, go onto the global mesh
+            trainable, opt, keys, inputs, mask = jax.tree.map(np.asarray, (trainable, opt, keys, inputs, mask))
+            frozen, rates_R, hparams = jax.tree.map(np.asarray, (frozen, rates_R, hparams))
         trainable, opt, keys, inputs, mask = jax.device_put((trainable, opt, keys, inputs, mask), grid)
+        frozen, rates_R, hparams = jax.device_put((frozen, rates_R, hparams), everywhere)
     bar = runlog.progress_bar(num_steps, desc or f"sweep {num_sets} sets x {num_rates} rates", progress)
     losses = []
     for a in range(0, total, chunk):
@@ -230,8 +238,10 @@ def grid_sweep(loss_fn, trainable_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT,
             bar.set_postfix(loss=f"{float(jnp.nanmean(chunk_losses)):.4f}")
     if bar is not None:
         bar.close()
-    losses = jnp.concatenate(losses, axis=2)[:num_sets, :, :num_steps]
-    return jax.tree.map(lambda v: v[:num_sets], trainable), losses
+    losses = jnp.concatenate(losses, axis=2)
+    if shard and jax.process_count() > 1:  # sets trained on other processes' devices: gathered here
+        trainable, losses = jax.tree.map(jnp.asarray, gather((trainable, losses)))
+    return jax.tree.map(lambda v: v[:num_sets], trainable), losses[:num_sets, :, :num_steps]
 
 
 # --- full training runs --------------------------------------------------------------------------
