@@ -178,33 +178,34 @@ def live_rows(size: dict, small: bool) -> list[dict]:
     return out
 
 
+COLUMNS = {  # per section: (column title, cell of one result row)
+    "sweep": [("sweep mode", lambda r: r["mode"]), ("styles x rates", lambda r: f"{r['styles']} x {r['rates']}"),
+              ("steps", lambda r: f"{r['steps']}"), ("compile s", lambda r: f"{r['compile_s']:.1f}"),
+              ("sweep s", lambda r: f"{r['seconds']:.2f}"), ("ms per step", lambda r: f"{r['ms_per_step']:.2f}"),
+              ("pairs per s", lambda r: f"{r['pairs_per_s']:.1f}"), ("GFLOP/s", lambda r: f"{r['gflop_s']:.0f}"),
+              ("matmul GFLOP/s", lambda r: f"{r['matmul_gflop_s']:.0f}"),
+              ("sweep / matmul", lambda r: f"{r['gflop_s'] / r['matmul_gflop_s']:.2f}"),
+              ("loop of single runs s (estimate)", lambda r: f"{r['loop_estimate_s']:.1f}")],
+    "lpn": [("LPN training", lambda r: r["model"]), ("hidden", lambda r: f"{r['hidden']}"),
+            ("batch", lambda r: f"{r['batch']}"), ("steps", lambda r: f"{r['steps']}"),
+            ("first call s", lambda r: f"{r['first_call_s']:.1f}"), ("s", lambda r: f"{r['seconds']:.2f}"),
+            ("ms per step", lambda r: f"{r['ms_per_step']:.2f}"),
+            ("samples per s", lambda r: f"{r['samples_per_s']:,.0f}")],
+    "live": [("live model", lambda r: r["model"]), ("characters", lambda r: f"{r['characters']}"),
+             ("first frame s", lambda r: f"{r['first_frame_s']:.1f}"), ("p50 ms", lambda r: f"{r['p50_ms']:.2f}"),
+             ("p95 ms", lambda r: f"{r['p95_ms']:.2f}"), ("frames per s", lambda r: f"{r['frames_per_s']:.0f}"),
+             ("character-frames per s", lambda r: f"{r['character_frames_per_s']:,.0f}")],
+}
+
+
 def markdown(result: dict) -> str:
     lines = [f"Machine: {result['device']}; host {result['host']}; jax {result['jax']}; {result['date']}; "
              f"{'small' if result['small'] else 'full'} size", ""]
-    if "sweep" in result:
-        lines += ["| sweep mode | styles x rates | steps | compile s | sweep s | ms per step | pairs per s | "
-                  "GFLOP/s | matmul GFLOP/s | sweep / matmul | loop of single runs s (estimate) |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
-        for r in result["sweep"]:
-            lines.append(f"| {r['mode']} | {r['styles']} x {r['rates']} | {r['steps']} | {r['compile_s']:.1f} | "
-                         f"{r['seconds']:.2f} | {r['ms_per_step']:.2f} | {r['pairs_per_s']:.1f} | {r['gflop_s']:.0f} | "
-                         f"{r['matmul_gflop_s']:.0f} | {r['gflop_s'] / r['matmul_gflop_s']:.2f} | "
-                         f"{r['loop_estimate_s']:.1f} |")
-        lines.append("")
-    if "lpn" in result:
-        lines += ["| LPN training | hidden | batch | steps | first call s | s | ms per step | samples per s |",
-                  "|---|---|---|---|---|---|---|---|"]
-        for r in result["lpn"]:
-            lines.append(f"| {r['model']} | {r['hidden']} | {r['batch']} | {r['steps']} | {r['first_call_s']:.1f} | "
-                         f"{r['seconds']:.2f} | {r['ms_per_step']:.2f} | {r['samples_per_s']:,.0f} |")
-        lines.append("")
-    if "live" in result:
-        lines += ["| live model | characters | first frame s | p50 ms | p95 ms | frames per s "
-                  "| character-frames per s |",
-                  "|---|---|---|---|---|---|---|"]
-        for r in result["live"]:
-            lines.append(f"| {r['model']} | {r['characters']} | {r['first_frame_s']:.1f} | {r['p50_ms']:.2f} | "
-                         f"{r['p95_ms']:.2f} | {r['frames_per_s']:.0f} | {r['character_frames_per_s']:,.0f} |")
+    for section, columns in COLUMNS.items():
+        if section not in result:
+            continue
+        lines += ["| " + " | ".join(title for title, _ in columns) + " |", "|" + "---|" * len(columns)]
+        lines += ["| " + " | ".join(cell(r) for _, cell in columns) + " |" for r in result[section]]
         lines.append("")
     for name, error in result.get("errors", {}).items():
         lines.append(f"{name}: FAILED: {error}")

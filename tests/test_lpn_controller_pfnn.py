@@ -262,7 +262,7 @@ def test_trained_pfnn_backbone_keeps_its_phase_near_the_data_rate(loaded):
 
 @pytest.mark.slow
 def test_stop_and_go_stops_within_half_a_second_and_walks_again(loaded):
-    """Issue 19's target with the 2022 controller: root speed below 0.1 m/s within 0.5 s of each
+    """The stop-and-go target with the 2022 controller: root speed below 0.1 m/s within 0.5 s of each
     stop command (the standing amount of the controls), walking again after it; without the
     standing amount the same model does not stop."""
     model, ds, char, upm, rows, speed, row = _neutral(loaded)

@@ -31,8 +31,9 @@ from jaxstyle.motion.bvh import read_bvh
 from jaxstyle.nn import film_generator, pfnn, style_models
 from jaxstyle.output import synthesis
 from jaxstyle.play import learn, session
+from jaxstyle.play.frame import Steering, control_row, control_rows
 from jaxstyle.play.server import bone_transforms, ground_point
-from jaxstyle.play.session import PlayError, Steering, control_row
+from jaxstyle.play.session import PlayError
 from tests import test_synthesis_lpn
 
 STYLES = ("Neutral", "Crouched")
@@ -256,7 +257,7 @@ def test_control_rows_of_many_characters_equal_each_alone():
                  Steering("target", [(0.05, 0.0)], 0.0, 1.0)]
     origin, yaw = rng.normal(size=(5, 2)) * 0.1, rng.uniform(-3, 3, size=5)
     alone = [control_row(origin[i], yaw[i], copy.deepcopy(st), 50.0) for i, st in enumerate(steerings)]
-    offsets, facing = session.control_rows(origin, yaw, steerings, 50.0)
+    offsets, facing = control_rows(origin, yaw, steerings, 50.0)
     for i in range(5):
         np.testing.assert_allclose(offsets[i], alone[i][0], atol=1e-12)
         np.testing.assert_allclose(facing[i], alone[i][1], atol=1e-12)

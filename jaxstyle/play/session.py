@@ -61,7 +61,7 @@ from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn, style_models
 from jaxstyle.output import footlock, lpn_synthesis, synthesis
 from jaxstyle.play import frame as live
-from jaxstyle.play.frame import Steering, _wrap, control_row, control_rows  # noqa: F401  (the session's steering)
+from jaxstyle.play.frame import Steering, _wrap, control_rows
 
 MAX_BLEND = 3
 STAND_EASE = 0.1  # per frame, the share of the gap to the asked standing amount closed (``Session.controls``)
