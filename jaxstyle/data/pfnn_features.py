@@ -210,9 +210,16 @@ def decode_pfnn(outputs: np.ndarray, skeleton: Motion, *, origin: np.ndarray | N
 
 
 
+def contact_columns(num_joints: int, output_size: int) -> np.ndarray | None:
+    """The columns of the heel and toe contact outputs (heel L, heel R, toe L, toe R) among
+    ``output_size`` PFNN outputs of the layout's contact option, ``None`` for the paper's layout."""
+    layout = PFNNLayout.from_output_size(num_joints, output_size)
+    return np.arange(output_size)[layout.output_groups["foot_contact"]] if layout.contacts else None
+
+
 def output_contacts(outputs: np.ndarray, num_joints: int) -> np.ndarray | None:
     """``(N, 4)`` predicted contact labels (heel L, heel R, toe L, toe R) of PFNN outputs with the
     layout's contact option, ``None`` for the paper's layout."""
     y = np.asarray(outputs)
-    layout = PFNNLayout.from_output_size(num_joints, y.shape[-1])
-    return y[..., layout.output_groups["foot_contact"]] if layout.contacts else None
+    columns = contact_columns(num_joints, y.shape[-1])
+    return None if columns is None else y[..., columns]

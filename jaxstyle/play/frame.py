@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxstyle.control import loop
-from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PFNNLayout
+from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
 from jaxstyle.output import footlock
 
 ARRIVE_M = 0.3  # a waypoint is reached within this distance
@@ -110,19 +110,11 @@ class FrameOut(NamedTuple):
     future: jax.Array
 
 
-def contact_columns(num_joints: int, output_size: int) -> np.ndarray | None:
-    """The 2018 layout's heel and toe contact outputs (heel L, heel R, toe L, toe R) among
-    ``output_size`` PFNN outputs, ``None`` for the paper's layout (no contact outputs)."""
-    layout = PFNNLayout.from_output_size(num_joints, output_size)
-    if not layout.contacts:
-        return None
-    return np.arange(output_size)[layout.output_groups["foot_contact"]]
-
-
 def labels_of(out, columns: np.ndarray | None) -> jax.Array:
     """``(S, 2, 2)`` contact labels ``[side, heel/toe]`` per slot (the array form of
     :func:`jaxstyle.output.footlock.labels_per_point`): an LPN's two foot labels (heel and toe share
-    one), the 2018 layout's heel and toe outputs at ``columns``, zeros when the model predicts none."""
+    one), the 2018 layout's heel and toe outputs at ``columns``
+    (:func:`jaxstyle.data.pfnn_features.contact_columns`), zeros when the model predicts none."""
     contacts = getattr(out, "contacts", None)
     if contacts is not None:
         return jnp.repeat(contacts[:, :, None], 2, axis=2).astype(jnp.float32)

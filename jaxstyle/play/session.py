@@ -55,6 +55,7 @@ import numpy as np
 from jaxstyle.control import controller, loop, lpn_controller
 from jaxstyle.control.controller import Rollout, RolloutState
 from jaxstyle.data.lpn_features import LPNLayout, end_effector_columns
+from jaxstyle.data.pfnn_features import contact_columns
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline, selection
 from jaxstyle.mason2022 import synthesis as synthesis2022
@@ -416,7 +417,7 @@ class Session:
         self.num_joints = model.skeleton.num_joints
         self.fps = float(model.skeleton.fps)
         self.upm = float(model.units_per_meter)
-        columns = (live.contact_columns(self.num_joints, int(model.base.model.output_size))
+        columns = (contact_columns(self.num_joints, int(model.base.model.output_size))
                    if isinstance(model, PlayModel) else None)
         # the whole frame (network step, foot lock, scene arrays) as one jitted call, compiled once
         # per slot count (jaxstyle.play.frame)
