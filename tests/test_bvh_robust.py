@@ -8,6 +8,7 @@ file, never another exception type, and never hangs.
 
 from __future__ import annotations
 
+import os
 import random
 import time
 import tracemalloc
@@ -19,6 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import jaxstyle as js
+from jaxstyle.motion import transform
 from jaxstyle.motion.bvh import MAX_ABS_VALUE, frame_rate
 
 SMALL = "xia/angry_18_000.bvh"  # 31 joints, 96 channels, 80 frames
@@ -190,7 +192,7 @@ def test_absurd_offset_is_refused(small_lines):
         js.parse_bvh("\n".join(lines), source=SOURCE)
 
 
-@pytest.mark.parametrize("frame_time", ["1e-320", "1e-300", "1e300", "2e7"])
+@pytest.mark.parametrize("frame_time", ["1e-320", "1e-300", "1e300", "2e7", "10", "1.5", "1e-7", "0.0009"])
 def test_absurd_frame_time_is_refused(small_lines, tmp_path, frame_time):
     # 1e-320 used to overflow (fps = inf) with an OverflowError instead of MotionDataError.
     lines = list(small_lines)
@@ -310,3 +312,64 @@ def test_random_bytes_raise_only_the_project_error(small_lines, blob, pos):
     pos %= len(data) + 1
     _parse_or_error(data[:pos] + blob + data[pos:], data.count(b"\n") + blob.count(b"\n") + blob.count(b"\r") + 1)
 
+
+
+@pytest.mark.parametrize("frame_time, fps", [("1", 1.0), ("0.001", 1000.0), ("0.0083333", 120.0)])
+def test_frame_times_at_the_bounds_are_read(small_lines, frame_time, fps):
+    lines = list(small_lines)
+    lines[_motion_start(lines) + 2] = f"Frame Time: {frame_time}"
+    assert js.parse_bvh("\n".join(lines), source=SOURCE).fps == pytest.approx(fps)
+
+
+def test_pipes_devices_and_large_files_are_refused_without_reading_them(small_lines, tmp_path, monkeypatch):
+    fifo = tmp_path / "clip.bvh"
+    os.mkfifo(fifo)  # no writer: opening it for reading the usual way would block forever
+    for fn in (js.read_bvh, frame_rate):
+        with pytest.raises(js.MotionDataError, match=r"clip\.bvh: is not a regular file"):
+            fn(fifo)
+        with pytest.raises(js.MotionDataError, match=r"/dev/zero: is not a regular file"):
+            fn("/dev/zero")
+    path = tmp_path / "big.bvh"
+    path.write_text("\n".join(small_lines) + "\n")
+    size = path.stat().st_size
+    assert js.read_bvh(path, max_bytes=size).num_frames > 0
+    with pytest.raises(js.MotionDataError, match=r"big\.bvh: is .* MB, more than the .* MB .*JAXSTYLE_MAX_BVH_MB"):
+        js.read_bvh(path, max_bytes=size - 1)
+    monkeypatch.setenv("JAXSTYLE_MAX_BVH_MB", str((size - 1) / 1e6))
+    with pytest.raises(js.MotionDataError, match=r"big\.bvh: is"):
+        js.read_bvh(path)
+    monkeypatch.setenv("JAXSTYLE_MAX_BVH_MB", "nan")
+    with pytest.raises(js.MotionDataError, match=r"JAXSTYLE_MAX_BVH_MB must be a positive number"):
+        js.read_bvh(path)
+
+
+def _chain_bvh(n_joints: int, frames: int = 2) -> str:
+    lines = ["HIERARCHY", "ROOT j0", "{", "OFFSET 0 0 0",
+             "CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation"]
+    for k in range(1, n_joints):
+        lines += [f"JOINT j{k}", "{", "OFFSET 0 1 0", "CHANNELS 3 Zrotation Yrotation Xrotation"]
+    lines += ["End Site", "{", "OFFSET 0 1 0", "}"] + ["}"] * n_joints
+    row = " ".join(["0.5"] * (3 + 3 * n_joints))
+    return "\n".join(lines + ["MOTION", f"Frames: {frames}", "Frame Time: 0.0333333"] + [row] * frames) + "\n"
+
+
+def test_a_100000_joint_chain_parses_in_seconds():
+    # the hierarchy and the rows are read in time linear in the joint count (a name list searched
+    # per joint, and pandas with one column per value, made 40,000 joints take 14 s)
+    text = _chain_bvh(100_000)
+    t0 = time.perf_counter()
+    motion = js.parse_bvh(text, source="chain.bvh")
+    assert time.perf_counter() - t0 < 10.0
+    assert motion.num_joints == 100_000 and motion.parents[-1] == 99_998
+    np.testing.assert_allclose(motion.local_positions[:, 0], 0.5)
+    # a wide row one value short is still refused with its line
+    short = text.rsplit(" 0.5\n", 1)[0] + "\n"
+    with pytest.raises(js.MotionDataError, match=r"chain\.bvh, line \d+: motion row 2 has 300002 values"):
+        js.parse_bvh(short, source="chain.bvh")
+
+
+def test_resampling_is_bounded():
+    motion = js.parse_bvh(_chain_bvh(3, frames=10), source="slow.bvh").replace(fps=2.0)
+    assert transform.resample(motion, 16.0).num_frames == 73
+    with pytest.raises(js.MotionDataError, match=r"slow\.bvh: the clip runs at 2 frames/s; resampling it to 60 .*8x"):
+        transform.resample(motion, 60.0)

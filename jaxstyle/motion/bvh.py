@@ -18,7 +18,8 @@ What the reader accepts and refuses (see also ``docs/bad_input.md``):
   row's length) with the row's line;
 * NaN, inf, and absurd finite numbers are refused: every OFFSET and motion value must satisfy
   ``|value| <= 1e7`` (:data:`MAX_ABS_VALUE`; 1e7 cm is 100 km, 1e7 degrees about 28,000 turns),
-  and ``Frame Time`` must lie in ``[1e-7, 1e7]`` seconds;
+  and ``Frame Time`` must lie in ``[0.001, 1]`` seconds (1-1000 frames/s, :data:`MIN_FPS`,
+  :data:`MAX_FPS`): a clip at 1 frame per 10 s resampled to 60 frames/s would be 600 times longer;
 * every problem raises :class:`~jaxstyle.errors.MotionDataError` (a ``ValueError`` and a
   :class:`~jaxstyle.errors.JaxstyleError`) whose message starts with ``<file>, line <n>: ``.
 """
@@ -27,8 +28,10 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import os
 import re
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -39,17 +42,20 @@ from jaxstyle.motion import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, quat
 _KNOWN_CHANNELS = POSITION_CHANNELS + ROTATION_CHANNELS
 _EULER_BLOCK = 256  # frames converted from Euler angles at a time
 _FPS_SNAP = 1e-3  # fps within this (relative) of an integer is snapped to it: 1/0.016667 -> 60.
-MAX_ABS_VALUE = 1e7  # largest |value| accepted in OFFSET and motion rows (and bound on Frame Time and fps)
+MAX_ABS_VALUE = 1e7  # largest |value| accepted in OFFSET and motion rows
+MAX_BVH_MB = 200.0  # the default size limit of read_bvh (JAXSTYLE_MAX_BVH_MB changes it)
+MIN_FPS, MAX_FPS = 1.0, 1000.0  # the frame rates accepted (Frame Time 1 s to 1 ms); capture runs at 24-480
 _BOM = b"\xef\xbb\xbf"
+_WIDE_ROW = 3000  # channels per row above which the motion block is parsed by numpy instead of pandas
 
 
 def _check_frame_time(frame_time: float, source, lineno: int) -> None:
     if not (np.isfinite(frame_time) and frame_time > 0):
         raise MotionDataError(f"Frame Time must be a positive number, got {frame_time}", source, lineno)
-    if not 1.0 / MAX_ABS_VALUE <= frame_time <= MAX_ABS_VALUE:
+    if not 1.0 / MAX_FPS <= frame_time <= 1.0 / MIN_FPS:
         raise MotionDataError(
-            f"Frame Time {frame_time:g} is outside the sane range [{1.0 / MAX_ABS_VALUE:g}, {MAX_ABS_VALUE:g}] seconds",
-            source, lineno)
+            f"Frame Time {frame_time:g} s ({1.0 / frame_time:.4g} frames/s) is outside the sane range "
+            f"[{1.0 / MAX_FPS:g}, {1.0 / MIN_FPS:g}] seconds ({MIN_FPS:g}-{MAX_FPS:g} frames/s)", source, lineno)
 
 
 def _fps_from_frame_time(frame_time: float) -> float:
@@ -61,7 +67,7 @@ def _fps_from_frame_time(frame_time: float) -> float:
 def frame_rate(path: str | os.PathLike) -> float:
     """A BVH file's frames per second from its ``Frame Time:`` line, as :func:`read_bvh` gives it
     (snapped like there), without reading the frames."""
-    with open(path, "rb") as f:
+    with _open_regular(Path(path)) as f:
         for lineno, line in enumerate(f, 1):
             if line.strip().lower().startswith(b"frame time:"):
                 try:
@@ -73,7 +79,7 @@ def frame_rate(path: str | os.PathLike) -> float:
     raise MotionDataError("no 'Frame Time:' line", path)
 
 
-def read_bvh(path: str | os.PathLike) -> Motion:
+def read_bvh(path: str | os.PathLike, *, max_bytes: int | None = None) -> Motion:
     """Reads a BVH file into a :class:`~jaxstyle.motion.Motion`.
 
     ``fps`` is ``1 / Frame Time``, snapped to the nearest integer when within 0.1% of it
@@ -81,21 +87,76 @@ def read_bvh(path: str | os.PathLike) -> Motion:
 
     A leading UTF-8 byte order mark, CRLF line endings and tabs are accepted.
 
+    ``max_bytes``: the largest file read (default :func:`max_bvh_bytes`); pipes, sockets and
+    devices are refused without reading (a FIFO would block, ``/dev/zero`` never ends).
+
     Raises:
-      MotionDataError: the file is missing, empty or malformed (e.g. a motion row with the wrong
-        number of values, however long), or holds NaN/inf or an absurd value (``|value| > 1e7``,
-        :data:`MAX_ABS_VALUE`, in an OFFSET or a motion row); the message names the file and the line.
+      MotionDataError: the file is missing, not a regular file, too large, empty or malformed
+        (e.g. a motion row with the wrong number of values, however long), or holds NaN/inf or an
+        absurd value (``|value| > 1e7``, :data:`MAX_ABS_VALUE`, in an OFFSET or a motion row); the
+        message names the file and the line.
     """
     path = Path(path)
+    limit = max_bytes if max_bytes is not None else max_bvh_bytes()
+    f = _open_regular(path)
+    size = os.fstat(f.fileno()).st_size
+    if size > limit:
+        f.close()
+        raise MotionDataError(_too_big(size, limit), path)
+    with f:
+        try:
+            # read(limit + 1) would allocate the whole limit at once; pieces of the expected size do not
+            pieces, got = [], 0
+            while got <= limit:
+                piece = f.read(min(limit + 1 - got, max(size + 1, 1 << 16)))
+                if not piece:
+                    break
+                pieces.append(piece)
+                got += len(piece)
+            text = b"".join(pieces)
+        except OSError as e:
+            raise MotionDataError(f"cannot read file ({e.strerror})", path) from None
+    if len(text) > limit:  # grew while being read
+        raise MotionDataError(_too_big(len(text), limit), path)
+    return parse_bvh(text, source=str(path))
+
+
+def _open_regular(path: Path):
+    """``path`` opened for reading in binary, or a MotionDataError: missing, a directory, or not a
+    regular file (opened with O_NONBLOCK, so a FIFO without a writer does not block)."""
     try:
-        text = path.read_bytes()
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
         raise MotionDataError("file not found", path) from None
     except IsADirectoryError:
         raise MotionDataError("is a directory, not a BVH file", path) from None
     except OSError as e:
         raise MotionDataError(f"cannot read file ({e.strerror})", path) from None
-    return parse_bvh(text, source=str(path))
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        if stat.S_ISDIR(mode):
+            raise MotionDataError("is a directory, not a BVH file", path)
+        raise MotionDataError("is not a regular file (a pipe, socket or device); give a BVH file", path)
+    return os.fdopen(fd, "rb")
+
+
+def max_bvh_bytes() -> int:
+    """The largest BVH file :func:`read_bvh` reads: ``JAXSTYLE_MAX_BVH_MB`` megabytes (default
+    :data:`MAX_BVH_MB`; the largest 100STYLE file is 4 MB)."""
+    raw = os.environ.get("JAXSTYLE_MAX_BVH_MB", "")
+    try:
+        mb = float(raw) if raw.strip() else MAX_BVH_MB
+    except ValueError:
+        mb = float("nan")
+    if not (math.isfinite(mb) and mb > 0):
+        raise MotionDataError(f"JAXSTYLE_MAX_BVH_MB must be a positive number of megabytes, got {raw!r}")
+    return int(mb * 1e6)
+
+
+def _too_big(size: int, limit: int) -> str:
+    return (f"is {size / 1e6:.1f} MB, more than the {limit / 1e6:g} MB a BVH file may have here "
+            "(set JAXSTYLE_MAX_BVH_MB to read larger files)")
 
 
 def parse_bvh(text: str | bytes, source: str = "<string>") -> Motion:
@@ -134,6 +195,7 @@ def _parse_hierarchy(lines: list[str], source: str) -> dict:
     channels: list[tuple[str, ...]] = []
     end_parents: list[int] = []
     end_offsets: list[list[float]] = []
+    seen: set[str] = set()  # the names so far (a set: the duplicate check stays linear in the joint count)
     stack: list[int] = []  # open blocks: joint index, or -2 for an End Site
     pending: int | None = None  # a ROOT/JOINT/End Site line waiting for its "{"
     saw_header = False
@@ -159,8 +221,9 @@ def _parse_hierarchy(lines: list[str], source: str) -> dict:
                     raise MotionDataError(f"JOINT {name!r} outside a joint block", source, lineno)
                 if tok == "ROOT" and stack:
                     raise MotionDataError(f"ROOT {name!r} inside another joint", source, lineno)
-                if name in names:
+                if name in seen:
                     raise MotionDataError(f"duplicate joint name {name!r}", source, lineno)
+                seen.add(name)
                 names.append(name)
                 parents.append(stack[-1] if stack else -1)
                 offsets.append([0.0, 0.0, 0.0])
@@ -320,6 +383,9 @@ def _fast_parse(block: bytes, n_frames: int, n_channels: int) -> np.ndarray | No
     seps = [" "] if b"\t" not in first and first.count(b" ") + 1 == n_channels else []
     seps.append(r"\s+")
 
+    if n_channels > _WIDE_ROW:
+        return _wide_parse(block, n_frames, n_channels)
+
     import pandas as pd  # deferred: importing pandas costs ~0.3 s
 
     for sep in seps:
@@ -336,6 +402,22 @@ def _fast_parse(block: bytes, n_frames: int, n_channels: int) -> np.ndarray | No
         if values.shape == (n_frames, n_channels) and (np.abs(values) <= MAX_ABS_VALUE).all():
             return values
     return None
+
+
+def _wide_parse(block: bytes, n_frames: int, n_channels: int) -> np.ndarray | None:
+    """Rows of many thousand values (skeletons of thousands of joints): pandas builds one column
+    object per value there (quadratic in practice: 10,000 joints took seconds), so the rows are
+    split and converted by numpy in one pass, linear in the file's size. None when a row's count
+    is off or a value is not a finite number within :data:`MAX_ABS_VALUE` (the careful pass then
+    names the line)."""
+    rows = [line for line in block.split(b"\n") if line and not line.isspace()]
+    if len(rows) != n_frames or any(len(row.split()) != n_channels for row in rows):
+        return None
+    try:
+        values = np.array(b" ".join(rows).split(), dtype=np.float64).reshape(n_frames, n_channels)
+    except ValueError:
+        return None
+    return values if (np.abs(values) <= MAX_ABS_VALUE).all() else None
 
 
 def _careful_parse(block: str, n_frames: int, n_channels: int, first_line: int, source: str) -> np.ndarray:

@@ -8,6 +8,7 @@ from jaxstyle.errors import MotionDataError
 from jaxstyle.motion import Motion, quat, skeleton
 
 _AXES = {"x": 0, "y": 1, "z": 2}
+MAX_UPSAMPLE = 8  # resample() makes a clip at most this many times longer (24 -> 120 frames/s is 5x)
 
 
 def scale(motion: Motion, factor: float) -> Motion:
@@ -64,9 +65,17 @@ def resample(motion: Motion, fps: float) -> Motion:
     When the source rate is an integer multiple of ``fps`` (120 -> 60, as both papers do), the
     sample times fall exactly on source frames, so this is plain frame dropping (every 2nd frame).
     The last sample is the last one at or before the clip's final frame.
+
+    Raises:
+      MotionDataError: ``fps`` is more than :data:`MAX_UPSAMPLE` times the clip's rate (the
+        resampled clip would be that many times longer: a memory bound, not a quality one).
     """
     if not (np.isfinite(fps) and fps > 0):
         raise ValueError(f"target fps must be a positive number, got {fps}")
+    if fps > MAX_UPSAMPLE * motion.fps:
+        raise MotionDataError(
+            f"the clip runs at {motion.fps:.4g} frames/s; resampling it to {fps:g} would make it "
+            f"{fps / motion.fps:.0f} times longer (at most {MAX_UPSAMPLE}x)", motion.source or None)
     ratio = motion.fps / fps
     n_out = int(np.floor((motion.num_frames - 1) / ratio + 1e-9)) + 1
     src = np.arange(n_out) * ratio
