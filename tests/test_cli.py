@@ -119,7 +119,9 @@ def test_train_base_then_sweep_and_synthesize(demo_run, tiny_data, tmp_path, cap
     clip = tiny_data / "Limping" / "Limping_FR.bvh"
     assert run_cli("sweep", "--run", run, "--clip", clip, "--clip-range", 0, 5, "--asymmetric", *TINY_SWEEP,
                    "--quiet") == 0
-    assert list(json.loads((run / "sweep" / "chosen_rates.json").read_text())) == ["Limping_FR"]
+    # added to the earlier sets, not replacing them
+    assert list(json.loads((run / "sweep" / "chosen_rates.json").read_text())) == [
+        "Crouched_FW", "Limping_FW", "Limping_FR"]
     capsys.readouterr()
     assert run_cli("sweep", "--run", run, "--sets", "Nope", "--quiet") == 1
     assert "unknown few-shot style(s) Nope" in capsys.readouterr().err
@@ -289,3 +291,31 @@ def test_demo_on_real_data(mocap, tmp_path):
     assert sorted(p.stem for p in (run / "synthesis" / "bvh").glob("*.bvh")) == ["Neutral_circle",
                                                                                    "Rushed_FW_circle"]
     assert json.loads((run / "sweep" / "chosen_rates.json").read_text()).keys() == {"Rushed_FW"}
+
+
+def test_a_run_folder_copied_elsewhere_works_from_another_directory(tmp_path, monkeypatch, capsys):
+    """A run whose data lies inside it (as the demo's does), made with paths relative to the working
+    directory, then copied and used from another directory: the base finds its data, the sweep
+    adds a set, synthesis reads the earlier and the new sets."""
+    import shutil
+
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert run_cli("data", "generate", "--out", "runs/a/data", "--styles", "Neutral", "Limping", "Crouched",
+                   "--gaits", "FW", "--seconds", 6, "--quiet") == 0
+    assert run_cli("train-base", "--data", "runs/a/data", "--run", "runs/a", "--styles", "Neutral", *TINY_NET,
+                   "--quiet") == 0
+    assert json.loads(Path("runs/a/base/base.json").read_text())["data"] == "../data"
+    assert run_cli("sweep", "--run", "runs/a", "--sets", "Limping", *TINY_SWEEP, "--quiet") == 0
+    assert all(not Path(s["path"]).is_absolute() for s in
+               json.loads(Path("runs/a/sweep/sweep.json").read_text())["specs"])
+    shutil.copytree("runs/a", tmp_path / "moved")
+    shutil.rmtree("runs")  # the original is gone
+    monkeypatch.chdir(tmp_path)
+    assert run_cli("sweep", "--run", "moved", "--sets", "Crouched", *TINY_SWEEP, "--quiet") == 0
+    assert sorted(json.loads((tmp_path / "moved/sweep/chosen_rates.json").read_text())) == [
+        "Crouched_FW", "Limping_FW"]
+    assert run_cli("synthesize", "--run", "moved", "--paths", "straight", "--synth-seconds", 1, "--sets",
+                   "Limping_FW", "Crouched_FW", "--quiet") == 0
+    assert (tmp_path / "moved/synthesis/straight.gif").is_file()

@@ -106,9 +106,11 @@ def not_blank(png: bytes) -> float:
 def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
     server = served
     page = open_page(browser, server)
-    client = next(iter(server._server.get_clients().values()))
     reported = []  # the views the page itself reports (not the server's copy of what it was sent)
-    client.camera.on_update(lambda cam: reported.append((np.asarray(cam.position), np.asarray(cam.look_at))))
+    # every connection's reports: under load the page may miss websocket pings and reconnect as a
+    # new client (viser replays this registration for the clients already connected)
+    server._server.on_client_connect(lambda client: client.camera.on_update(
+        lambda cam: reported.append((np.asarray(cam.position), np.asarray(cam.look_at)))))
     # the character is drawn: the render loop runs and its scene nodes exist
     frames = server.session.frames
     wait_for(lambda: server.session.frames > frames + 30 and server._nodes, 30, "the character")
@@ -119,19 +121,28 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
     server.session.stop()
     wait_for(lambda: server.session.characters[0].stand > 0.999, 20, "the character to stand")
 
+    asked = [0.0]
+
     def page_views_character():
         here = server.session.origin()[0]
         if reported and np.hypot(*(reported[-1][1][[0, 2]] - here)) < 0.05:
             return reported[-1]
+        if time.monotonic() - asked[0] > 2.0:
+            # ask the page for its view: viser's page reports its camera at once when told its field
+            # of view (a page that renders slowly, under load, may otherwise report only when moved)
+            asked[0] = time.monotonic()
+            for client in server._server.get_clients().values():
+                client.camera.fov = client.camera.fov
         return None
 
     # the camera follows: the page's own report puts its look-at point on the standing character
     # (a regression test: the follow once set look_at before position, and viser's position
     # setter moves look_at along, so the page looked at the wrong place)
+    clients = server._server.get_clients
     position, look_at = wait_for(page_views_character, PAGE_SECONDS, "the page's camera to follow the character",
                                  detail=lambda: f"{len(reported)} camera reports, the last {reported[-1:]}, the "
                                                 f"character at {server.session.origin()[0]}, the server's copy of the "
-                                                f"page's camera {client.camera.look_at}")
+                                                f"pages' cameras {[c.camera.look_at for c in clients().values()]}")
     ray = look_at - position
     floor = (position + ray * (-position[1] / ray[1]))[[0, 2]]  # where the middle of the view meets y = 0
     page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
@@ -172,19 +183,27 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
 def test_bad_input_shows_a_message_in_the_page(browser, served, tmp_path):
     server = served
     page = open_page(browser, server)
-    # a BVH of another skeleton, by path
-    text_field(page, "BVH path").fill(str(other_skeleton_bvh(tmp_path / "robot.bvh")))
+    # a BVH of another skeleton, by path (in the run folder, where the page may name files)
+    text_field(page, "BVH path").fill(str(other_skeleton_bvh(server.run_dir / "robot.bvh")))
     page.get_by_text("Learn the style of this file").click()
     page.get_by_text("another skeleton", exact=False).first.wait_for(timeout=1000 * PAGE_SECONDS)
-    # a file that is not BVH, uploaded
+    # a path outside the run folder: refused before it is looked at
+    text_field(page, "BVH path").fill(str(other_skeleton_bvh(tmp_path / "robot.bvh")))
+    page.get_by_text("Learn the style of this file").click()
+    page.get_by_text(f"{tmp_path / 'robot.bvh'} is not read", exact=False).first.wait_for(
+        timeout=1000 * PAGE_SECONDS)
+    # a file that is not BVH, uploaded: refused without quoting it, and removed
     notes = tmp_path / "notes.bvh"
-    notes.write_text("just some notes\n")
+    notes.write_text("HIERARCHY\nSECRET_TOKEN=1234 just some notes\nMOTION\n")
     page.set_input_files("input[type=file]", str(notes))
     wait_for(lambda: "notes.bvh" in server.message, PAGE_SECONDS, "the upload to be refused")
+    assert "SECRET" not in server.message and "unexpected token" in server.message
     reason = server.message.rsplit(": ", 1)[-1]  # after "<file>, line N: "
     page.get_by_text(reason, exact=False).first.wait_for(timeout=1000 * PAGE_SECONDS)
-    # a run folder with no model
-    empty = tmp_path / "empty_run"
+    assert "SECRET" not in page.inner_text("body")
+    assert not [p for p in (server.run_dir / "play" / "uploads").rglob("*") if p.is_file()]
+    # a run folder with no model (beside the run folder: the page may load those)
+    empty = server.run_dir.parent / "empty_run"
     empty.mkdir()
     text_field(page, "Run folder").fill(str(empty))
     page.get_by_role("button", name="Load this run folder", exact=True).click()

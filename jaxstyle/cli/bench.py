@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from jaxstyle.cli.common import SWEEP_RATES, Run, add_common, check_positive, machine
+from jaxstyle.cli.common import SWEEP_RATES, Run, add_common, check_positive, check_rates, finite, machine
 
 NAME = "bench"
 HELP = "time the few-shot sweep against a loop of single runs, and the network"
@@ -17,7 +17,7 @@ The fuller benchmarks are the scripts in the repository's benchmarks/ folder.
 
 def add_arguments(p) -> None:
     p.add_argument("--sets", type=int, default=4, help="few-shot sets (styles) in the sweep")
-    p.add_argument("--rates", type=float, nargs="+", default=SWEEP_RATES, help="dropout rates")
+    p.add_argument("--rates", type=finite, nargs="+", default=SWEEP_RATES, help="dropout rates")
     p.add_argument("--frames", type=int, default=600, help="rows per set")
     p.add_argument("--sweep-epochs", type=int, default=5, help="epochs per pair")
     p.add_argument("--hidden", type=int, default=512, help="hidden units when the run has no base model")
@@ -31,6 +31,7 @@ def run(args, run: Run) -> None:
     from jaxstyle.nn import pfnn
 
     check_positive(args, "sets", "frames", "sweep_epochs", "hidden")
+    check_rates(args.rates)
     if (run.dir / "base" / "base.json").is_file():
         base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache", progress=False)
         model, params, what = base.model, base.params, f"the base of {run.dir / 'base'}"

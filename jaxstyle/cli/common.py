@@ -7,6 +7,7 @@ import contextlib
 import datetime
 import importlib
 import json
+import math
 import os
 import platform
 import sys
@@ -124,16 +125,23 @@ class Run:
     ``config.json`` under the command's name (earlier commands' entries are kept). ``writer=False``
     (a process other than 0 of a ``--distributed`` run) writes and prints nothing."""
 
-    def __init__(self, directory: Path, command: str, settings: dict, argv: Sequence[str], *, writer: bool = True):
+    def __init__(self, directory: Path, command: str, settings: dict, argv: Sequence[str], *, writer: bool = True,
+                 lock: bool = True):
         self.dir = Path(directory)
         self.command = command
         self.writer = writer
+        self._lock = self._log = None
         if not writer:  # another process of a --distributed run: process 0 writes and reports
-            self._log = None
             return
         self.dir.mkdir(parents=True, exist_ok=True)
-        self.save_settings(settings)
-        self._log = open(self.dir / "log.txt", "a", encoding="utf-8")
+        if lock:
+            self._lock = lock_run(self.dir, argv)
+        try:
+            self.save_settings(settings)
+            self._log = open(self.dir / "log.txt", "a", encoding="utf-8")
+        except BaseException:
+            self.close()  # the lock too
+            raise
         stamp = datetime.datetime.now().isoformat(timespec="seconds")
         self._log.write(f"\n=== {stamp} jaxstyle {' '.join(argv)}\n")
         self._log.flush()
@@ -143,8 +151,15 @@ class Run:
         config_path = self.dir / "config.json"
         config = {}
         if config_path.is_file():
-            with contextlib.suppress(json.JSONDecodeError):
-                config = json.loads(config_path.read_text())
+            try:
+                config = json.loads(config_path.read_text(encoding="utf-8"))
+            except (json.JSONDecodeError, UnicodeDecodeError) as e:
+                where = f", line {e.lineno}" if isinstance(e, json.JSONDecodeError) else ""
+                raise CLIError(f"{config_path}{where}: not valid JSON ({getattr(e, 'msg', e)}); it holds the "
+                               "settings of the commands run here: fix it by hand") from None
+            if not isinstance(config, dict):
+                raise CLIError(f"{config_path}: expected a JSON object of the commands' settings, got "
+                               f"{type(config).__name__}; fix it by hand")
         config[self.command] = _jsonable({k: v for k, v in settings.items() if k not in _UNSAVED})
         tmp = config_path.with_name("config.json.tmp")
         from jaxstyle.train.checkpoint import json_text  # strict JSON (NaN -> null); loads JAX, so here
@@ -162,6 +177,37 @@ class Run:
     def close(self) -> None:
         if self._log is not None:
             self._log.close()
+            self._log = None
+        if self._lock is not None:
+            self._lock.close()  # releases the lock
+            self._lock = None
+
+
+LOCK_FILE = ".jaxstyle.lock"
+
+
+def lock_run(directory: Path, argv: Sequence[str]):
+    """Take the run folder's advisory lock (``flock`` on ``RUN/.jaxstyle.lock``, which names the
+    holder) or raise a CLIError naming the command that holds it. The operating system releases
+    the lock when its process ends, however it ends, so a killed command leaves no stale lock.
+    Returns the open lock file (closing it releases the lock)."""
+    import fcntl
+
+    path = Path(directory) / LOCK_FILE
+    f = open(path, "a+", encoding="utf-8")
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        f.seek(0)
+        holder = f.read().strip() or "another process"
+        f.close()
+        raise CLIError(f"--run {directory}: in use by {holder}; wait until it finishes (one command writes a run "
+                       "folder at a time)") from None
+    f.seek(0)
+    f.truncate()
+    f.write(f"pid {os.getpid()} (jaxstyle {' '.join(argv)})"[:300])
+    f.flush()
+    return f
 
 
 # --- argument parsing ---------------------------------------------------------------------------
@@ -281,13 +327,13 @@ def add_base_args(p: argparse.ArgumentParser, *, hidden: int, epochs: int, rank:
     p.add_argument("--hidden", type=int, default=hidden, help="hidden units of the PFNN (paper: 512)")
     p.add_argument("--rank", type=int, default=rank, help="rank of the CP adapters (paper: 30)")
     p.add_argument("--base-epochs", type=int, default=epochs, help="base training epochs (paper: 25)")
-    p.add_argument("--max-seconds", type=float, help="use only the first seconds of each base clip")
+    p.add_argument("--max-seconds", type=finite, help="use only the first seconds of each base clip")
     add_joint_map_arg(p)
 
 
 def add_sweep_args(p: argparse.ArgumentParser, *, epochs: int) -> None:
-    p.add_argument("--seconds", type=float, default=10.0, help="length of each few-shot clip (paper: a few seconds)")
-    p.add_argument("--rates", type=float, nargs="+", default=SWEEP_RATES, help="dropout rates to sweep")
+    p.add_argument("--seconds", type=finite, default=10.0, help="length of each few-shot clip (paper: a few seconds)")
+    p.add_argument("--rates", type=finite, nargs="+", default=SWEEP_RATES, help="dropout rates to sweep")
     p.add_argument("--sweep-epochs", type=int, default=epochs, help="fine-tuning epochs per (set, rate) (paper: 100)")
     p.add_argument("--adapter-dropout-only", action="store_true",
                    help="faster mode: dropout on the adapter path only (see jaxstyle.mason2018.fewshot.SweepConfig)")
@@ -305,8 +351,8 @@ def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds:
     from jaxstyle.control.paths import PATHS
 
     p.add_argument("--paths", nargs="+", default=list(paths), choices=list(PATHS), help="paths to walk")
-    p.add_argument("--synth-seconds", type=float, default=seconds, help="length of each synthesised path")
-    p.add_argument("--speed", type=float, help="speed of every character, m/s (default: each style's own)")
+    p.add_argument("--synth-seconds", type=finite, default=seconds, help="length of each synthesised path")
+    p.add_argument("--speed", type=finite, help="speed of every character, m/s (default: each style's own)")
     p.add_argument("--no-foot-lock", dest="foot_lock", action="store_false",
                    help="write the network's feet as they are (by default they are locked while planted, in the BVH "
                         "files and the animations)")
@@ -348,11 +394,29 @@ def elapsed(t0: float) -> str:
     return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
 
 
+def finite(text: str) -> float:
+    """argparse ``type`` of every number flag: a finite number (``nan``, ``inf`` and ``1e999`` are
+    refused with argparse's one line naming the flag)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def check_rates(rates, flag: str = "--rates") -> None:
+    """Dropout rates must lie in [0, 1)."""
+    if any(not 0 <= r < 1 for r in rates):
+        raise CLIError(f"{flag} must be dropout rates in [0, 1), got {' '.join(f'{r:g}' for r in rates)}")
+
+
 def check_positive(args, *names: str) -> None:
     for name in names:
         value = getattr(args, name, None)
-        if value is not None and value <= 0:
-            raise CLIError(f"--{name.replace('_', '-')} must be positive, got {value:g}")
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise CLIError(f"--{name.replace('_', '-')} must be positive and finite, got {value:g}")
 
 
 def written(run: Run, title: str, files: Sequence[Path]) -> None:

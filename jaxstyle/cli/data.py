@@ -14,6 +14,7 @@ from jaxstyle.cli.common import (
     check_positive,
     elapsed,
     ensure_folder,
+    finite,
     joint_map,
     progress,
 )
@@ -48,7 +49,7 @@ def add_generate_arguments(p) -> None:
     p.add_argument("--out", type=Path, default=Path("data/procedural"), help="folder to write")
     p.add_argument("--styles", nargs="+", help="styles (default: all)")
     p.add_argument("--gaits", nargs="+", help="gaits (default: FW FR)")
-    p.add_argument("--seconds", type=float, default=24.0, help="seconds per clip")
+    p.add_argument("--seconds", type=finite, default=24.0, help="seconds per clip")
     p.add_argument("--seed", type=int, default=0)
     add_common(p, None)
 
@@ -57,7 +58,7 @@ def add_fetch_arguments(p) -> None:
     p.add_argument("name", help="dataset name, e.g. 100style")
     p.add_argument("--dest", type=Path, default=Path("data"), help="folder to download and unpack into")
     p.add_argument("--url", help="download from this URL instead (a mirror)")
-    p.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the server")
+    p.add_argument("--timeout", type=finite, default=10.0, help="seconds to wait for the server")
     add_common(p, None)
 
 
@@ -65,7 +66,7 @@ def add_prepare_arguments(p) -> None:
     p.add_argument("--data", type=Path, required=True, help=DATA_HELP)
     p.add_argument("--styles", nargs="+", help="styles (default: all)")
     p.add_argument("--gaits", nargs="+", help="gait codes (default: the locomotion gaits)")
-    p.add_argument("--max-seconds", type=float, help="use only the first seconds of each clip")
+    p.add_argument("--max-seconds", type=finite, help="use only the first seconds of each clip")
     p.add_argument("--lpn", action="store_true", help="also build the 2022 LPN rows (local phases, style clips)")
     add_joint_map_arg(p)
     add_common(p)

@@ -18,6 +18,7 @@ from jaxstyle.cli.common import (
     add_synth_args,
     check_positive,
     elapsed,
+    finite,
     joint_map,
     machine,
     progress,
@@ -70,7 +71,7 @@ def add_arguments(p) -> None:
     add_base_args(p, hidden=256, epochs=12, rank=16)
     add_sweep_args(p, epochs=40)
     add_synth_args(p, paths=("circle",), seconds=8.0)
-    p.add_argument("--data-seconds", type=float, default=24.0, help="seconds of each procedural clip")
+    p.add_argument("--data-seconds", type=finite, default=24.0, help="seconds of each procedural clip")
     p.add_argument("--no-quality", action="store_true",
                    help="skip the quality table on the benchmark's target paths (step 5)")
     p.add_argument("--model", choices=DEMO_MODELS, default="pfnn",
@@ -78,7 +79,7 @@ def add_arguments(p) -> None:
                         "the 2022 pipeline")
     g = p.add_argument_group("2022 models (--model lpn-film ...)")
     g.add_argument("--lpn-epochs", type=int, default=2, help="training epochs of the 2022 model (paper: 90)")
-    g.add_argument("--learning-rate", type=float, default=1e-3,
+    g.add_argument("--learning-rate", type=finite, default=1e-3,
                    help="Adam learning rate of the 2022 model (demo: 1e-3 for its few epochs; paper and "
                         "`jaxstyle lpn`: 1e-4)")
     g.add_argument("--generator-hidden", type=int, default=512,
@@ -87,7 +88,7 @@ def add_arguments(p) -> None:
                    help="FiLM generator's convolution filters (demo preset; paper and `jaxstyle lpn`: 256)")
     g.add_argument("--finetune-steps", type=int, default=40,
                    help="FiLM fine-tuning steps per (new style, rate); 0: no new styles")
-    g.add_argument("--blend-weights", type=float, nargs="+", default=[0.5, 0.5], metavar="W",
+    g.add_argument("--blend-weights", type=finite, nargs="+", default=[0.5, 0.5], metavar="W",
                    help="weights of the blend of the first 2 or 3 styles shown (FiLM vectors interpolated)")
 
 
@@ -218,7 +219,7 @@ def run(args, run: Run) -> None:
     from jaxstyle.mason2018 import pipeline
 
     t_all = time.perf_counter()
-    check_positive(args, "seconds", "synth_seconds", "data_seconds")
+    check_positive(args, "seconds", "synth_seconds", "data_seconds", "speed")
     run.say(f"jaxstyle demo on {machine()}" + ("" if args.model == "pfnn" else f" (--model {args.model})"))
     root = _data_root(args, run)
     run.save_settings(vars(args))  # with the defaults the data folder implied

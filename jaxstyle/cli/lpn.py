@@ -18,6 +18,7 @@ from jaxstyle.cli.common import (
     add_joint_map_arg,
     check_positive,
     elapsed,
+    finite,
     joint_map,
     machine,
     progress,
@@ -52,16 +53,16 @@ def add_arguments(p) -> None:
     p.add_argument("--styles", nargs="+", help="training styles (default: all but --new-styles)")
     p.add_argument("--new-styles", nargs="+", help="styles to fine-tune on (default: as the few-shot styles)")
     p.add_argument("--gaits", nargs="+", help="gait codes (default: the locomotion gaits)")
-    p.add_argument("--max-seconds", type=float, help="use only the first seconds of each clip")
+    p.add_argument("--max-seconds", type=finite, help="use only the first seconds of each clip")
     p.add_argument("--epochs", type=int, default=6, help="training epochs (paper: 90)")
     p.add_argument("--hidden", type=int, default=512, help="hidden units (paper: 512)")
     p.add_argument("--generator-hidden", type=int, default=2048, help="FiLM generator's dense units (paper: 2048)")
     p.add_argument("--filters", type=int, default=256, help="FiLM generator's convolution filters (paper: 256)")
     p.add_argument("--finetune-steps", type=int, default=150, help="fine-tuning steps per (style, rate); 0: none")
-    p.add_argument("--rates", type=float, nargs="+", default=FINETUNE_RATES, help="fine-tuning dropout rates")
+    p.add_argument("--rates", type=finite, nargs="+", default=FINETUNE_RATES, help="fine-tuning dropout rates")
     p.add_argument("--clip", type=Path, nargs="+", help="your own BVH clips (the training data's skeleton), one new "
                                                         "style per file named by its stem; replaces --new-styles")
-    p.add_argument("--clip-range", type=float, nargs=2, metavar=("START", "END"), help="seconds of each --clip")
+    p.add_argument("--clip-range", type=finite, nargs=2, metavar=("START", "END"), help="seconds of each --clip")
     p.add_argument("--asymmetric", action="store_true", help="do not mirror the --clip files")
     p.add_argument("--devices", help="train data-parallel over 'all' devices or that many (default: one)")
     p.add_argument("--batch-size", type=int, default=32,

@@ -42,6 +42,7 @@ from jaxstyle.cli.common import (
     describe_os_error,
     ensure_folder,
     file_in_the_way,
+    finite,
     one_line,
     resolve_defaults,
     start_distributed,
@@ -113,8 +114,8 @@ def _toml(value) -> str:
         return str(value)
 
 
-_KINDS = {int: ("an integer", "integers"), float: ("a number", "numbers"), Path: ("a path", "paths"),
-          None: ("a string", "strings")}
+_KINDS = {int: ("an integer", "integers"), float: ("a number", "numbers"), finite: ("a number", "numbers"),
+          Path: ("a path", "paths"), None: ("a string", "strings")}
 
 
 def _convert_one(action: argparse.Action, value, where: str):
@@ -125,7 +126,7 @@ def _convert_one(action: argparse.Action, value, where: str):
         raise bad
     if action.type is int and not isinstance(value, (int, str)):
         raise bad
-    if action.type is float and not isinstance(value, (int, float, str)):
+    if action.type in (float, finite) and not isinstance(value, (int, float, str)):
         raise bad
     if (action.type in (None, Path) and not isinstance(value, str)) or value == "":
         raise bad
@@ -256,7 +257,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if writer:
                 ensure_folder(Path(args.run), "--run")
             try:
-                run = Run(args.run, name, vars(args), argv, writer=writer)
+                # play writes only RUN/play (its own learned styles and recordings): it runs beside the others
+                run = Run(args.run, name, vars(args), argv, writer=writer, lock=name != "play")
             except OSError as e:
                 raise CLIError(f"--run {args.run}: {describe_os_error(e)}") from None
         handler(args, run)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import DEMO_RUN, SWEEP_RATES, CLIError, Run, add_common, check_positive
+from jaxstyle.cli.common import DEMO_RUN, SWEEP_RATES, CLIError, Run, add_common, check_positive, finite
 
 PLAY_MODELS = ("pfnn", "lpn-film", "lpn-onehot", "lpn-resad", "mann-film", "pfnn-film", "pfnn-onehot", "pfnn-resad")
 """``--model``: the 2018 PFNN and the 2022 models of Table 2 (``jaxstyle.mason2022.synthesis.MODELS``)."""
@@ -31,6 +32,10 @@ Serve a web page (http://HOST:PORT) showing a character driven live by the run's
   RUN/play/styles for later sessions);
 - record: save the last seconds as BVH (feet pinned) and GIF in RUN/play/recordings.
 
+Trust: only the page itself (its own origin; with --token, its URL) may connect; files the page
+names must lie in the run folder or a --clip-dir folder, run folders beside the --run folder; uploads
+above --max-upload-mb are refused (docs/play.md, "Who may connect").
+
 Without --run it plays runs/demo, running `jaxstyle demo` first when that holds no model
 (`jaxstyle demo --model lpn-film` with --model lpn-film).
 Stop with Ctrl-C.
@@ -39,15 +44,23 @@ Stop with Ctrl-C.
 
 def add_arguments(p) -> None:
     add_common(p, DEMO_RUN)
-    p.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0: every network interface)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to serve on (0.0.0.0: every network interface; give --token with it)")
+    p.add_argument("--token", default=None,
+                   help="a secret the page must present: only the URL printed at start (which carries it) "
+                        "connects; for --host 0.0.0.0")
+    p.add_argument("--clip-dir", type=Path, action="append", default=[],
+                   help="a folder whose BVH files the page may name in 'BVH path' (repeatable; the run folder "
+                        "always may be)")
+    p.add_argument("--max-upload-mb", type=finite, default=8.0, help="largest BVH upload the page accepts")
     p.add_argument("--port", type=int, default=8080, help="port of the page")
     p.add_argument("--model", choices=PLAY_MODELS, default=None,
                    help="the model to start with: pfnn (the 2018 base, RUN/base) or the run's trained 2022 model "
                         "(lpn-film ...: RUN/lpn); default pfnn when the run has one; the page switches between them")
     p.add_argument("--learn-epochs", type=int, default=40, help="fine-tuning epochs of a style learned live "
                                                                  "(the demo's sweep uses 40)")
-    p.add_argument("--rates", type=float, nargs="+", default=SWEEP_RATES, help="dropout rates to sweep when learning")
-    p.add_argument("--record-seconds", type=float, default=10.0, help="seconds the Record button saves by default")
+    p.add_argument("--rates", type=finite, nargs="+", default=SWEEP_RATES, help="dropout rates to sweep when learning")
+    p.add_argument("--record-seconds", type=finite, default=10.0, help="seconds the Record button saves by default")
 
 
 def _run_demo(run: Run, args) -> None:
@@ -65,9 +78,14 @@ def _run_demo(run: Run, args) -> None:
 
 def run(args, run: Run) -> None:
     from jaxstyle.play.server import PlayServer
-    from jaxstyle.play.session import available_models
+    from jaxstyle.play.session import PlayError, available_models
 
-    check_positive(args, "learn_epochs", "record_seconds")
+    check_positive(args, "learn_epochs", "record_seconds", "max_upload_mb")
+    if args.token is not None and not re.fullmatch(r"[A-Za-z0-9_-]{8,128}", args.token):
+        raise CLIError("--token must be 8-128 letters, digits, '_' or '-' (it goes into the page's URL)")
+    for folder in args.clip_dir:
+        if not folder.is_dir():
+            raise CLIError(f"--clip-dir {folder}: no such folder")
     if not 0 < args.port < 65536:
         raise CLIError(f"--port must be in 1 .. 65535, got {args.port}")
     if any(not 0 <= r < 1 for r in args.rates):
@@ -93,13 +111,16 @@ def run(args, run: Run) -> None:
                        f"{', '.join(have)}); train one with {how}")
     server = PlayServer(args.run, host=args.host, port=args.port, learn_epochs=args.learn_epochs,
                         learn_rates=tuple(args.rates), record_seconds=args.record_seconds, model=args.model,
-                        log=run.say)
+                        log=run.say, token=args.token, data_dirs=tuple(args.clip_dir),
+                        max_upload_bytes=int(args.max_upload_mb * 1e6))
     try:
         server.start()  # says where the page is, then loads the run
         while True:
             time.sleep(1.0)
     except OSError as e:
         raise CLIError(f"--port {args.port}: cannot serve there ({e.strerror or e})") from None
+    except PlayError as e:
+        raise CLIError(str(e)) from None
     except KeyboardInterrupt:
         run.say("stopped")
     finally:

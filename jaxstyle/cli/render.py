@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from jaxstyle.cli.common import CLIError, add_common, check_input_file, check_positive, ensure_folder, progress
+from jaxstyle.cli.common import CLIError, add_common, check_input_file, check_positive, ensure_folder, finite, progress
 
 NAME = "render"
 HELP = "render BVH files side by side to a GIF (or MP4)"
@@ -14,8 +14,8 @@ DOC = "Render BVH files (any skeleton, Y-up) side by side into an animated GIF, 
 def add_arguments(p) -> None:
     p.add_argument("files", type=Path, nargs="+", help="BVH files")
     p.add_argument("--out", type=Path, default=Path("preview.gif"), help="output .gif or .mp4")
-    p.add_argument("--start", type=float, default=0.0, help="first second to show")
-    p.add_argument("--seconds", type=float, default=10.0, help="seconds to show")
+    p.add_argument("--start", type=finite, default=0.0, help="first second to show")
+    p.add_argument("--seconds", type=finite, default=10.0, help="seconds to show")
     p.add_argument("--every", type=int, default=2, help="draw every n-th frame")
     add_common(p, None)
 

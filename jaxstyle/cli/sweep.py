@@ -15,6 +15,7 @@ from jaxstyle.cli.common import (
     add_sweep_args,
     check_positive,
     elapsed,
+    finite,
     joint_map,
     machine,
     progress,
@@ -28,7 +29,8 @@ Learn new styles from a few seconds of motion (Mason et al. 2018 section 7): for
 set (one clip of --seconds per held-out style and gait, or your --clip files) and every dropout
 rate, a fresh CP adapter is fine-tuned on the frozen base of RUN/base, all pairs in ONE jit(vmap)
 program; each is validated on held-out frames and driven closed-loop, and a rate is chosen per
-set. Writes RUN/sweep: results.csv, heatmap.png, chosen_rates.json, adapters/<set>/.
+set. Writes RUN/sweep: results.csv, heatmap.png, chosen_rates.json, adapters/<set>/. An earlier
+sweep's sets are kept (a set swept again is updated) unless --replace.
 """
 
 
@@ -38,8 +40,10 @@ def add_arguments(p) -> None:
     p.add_argument("--gaits", nargs="+", help="gaits of the few-shot clips (default: the base's)")
     p.add_argument("--clip", type=Path, nargs="+", help="your own BVH clips (the base's skeleton), one new style "
                                                         "per file named by its stem; replaces --sets")
-    p.add_argument("--clip-range", type=float, nargs=2, metavar=("START", "END"), help="seconds of each --clip")
+    p.add_argument("--clip-range", type=finite, nargs=2, metavar=("START", "END"), help="seconds of each --clip")
     p.add_argument("--asymmetric", action="store_true", help="do not mirror the --clip files")
+    p.add_argument("--replace", action="store_true",
+                   help="start RUN/sweep over: drop the sets of earlier sweeps (default: keep them beside the new)")
     add_joint_map_arg(p)  # default: the base's
     add_distributed_args(p)
     add_common(p)
@@ -54,7 +58,8 @@ def sweep_and_report(run: Run, args, base, specs):
     result, paths, shots = pipeline.run_sweep(base, specs, run.dir / "sweep", rates=args.rates,
                                               epochs=args.sweep_epochs, adapter_dropout_only=args.adapter_dropout_only,
                                               cache=run.dir / "cache" if run.writer else None,
-                                              progress=progress(args), write=run.writer)
+                                              progress=progress(args), write=run.writer,
+                                              replace=getattr(args, "replace", False))
     pairs = len(result.styles) * len(result.rates)
     run.say(f"sweep: {len(result.styles)} sets x {len(result.rates)} rates = {pairs} adapters, {args.sweep_epochs} "
             f"epochs each, in one compiled program: {result.seconds['sweep']:.1f} s; checks "

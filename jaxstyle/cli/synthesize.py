@@ -7,7 +7,17 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import CLIError, Run, add_common, add_synth_args, check_positive, elapsed, progress, written
+from jaxstyle.cli.common import (
+    CLIError,
+    Run,
+    add_common,
+    add_synth_args,
+    check_positive,
+    elapsed,
+    finite,
+    progress,
+    written,
+)
 
 NAME = "synthesize"
 HELP = "drive base and few-shot styles along paths: GIF, BVH, quality"
@@ -40,7 +50,7 @@ def add_arguments(p) -> None:
                                              "2022 models: fine-tuned new styles (default: all, up to 3)")
     p.add_argument("--blend", action="store_true",
                    help="add a 50/50 blend of the first two few-shot sets (2022 models: of the first two styles)")
-    p.add_argument("--blend-weights", type=float, nargs="+", metavar="W",
+    p.add_argument("--blend-weights", type=finite, nargs="+", metavar="W",
                    help="2022 models: add a blend of the first 2 or 3 styles shown with these weights (summing to 1)")
     add_common(p)
     add_synth_args(p, paths=("circle", "zigzag"), seconds=8.0)
@@ -120,7 +130,7 @@ def run_lpn(args, run: Run) -> None:
 
 
 def run(args, run: Run) -> None:
-    check_positive(args, "synth_seconds", "every")
+    check_positive(args, "synth_seconds", "every", "speed")
     if args.model != "pfnn":
         return run_lpn(args, run)
     from jaxstyle.mason2018 import pipeline

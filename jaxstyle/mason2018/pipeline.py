@@ -141,18 +141,52 @@ class BaseSettings:
         if self.max_seconds is not None and self.max_seconds <= 0:
             raise PipelineError(f"max_seconds must be positive, got {self.max_seconds}")
 
-    def to_json(self) -> dict:
+    def to_json(self, directory: str | os.PathLike | None = None) -> dict:
+        """The settings as JSON; with ``directory`` (where the JSON is written) ``data`` is
+        written relative to it when it lies inside the run folder (``directory``'s parent), so the
+        run folder can be copied or moved and used from any directory (:func:`portable_path`)."""
         d = dataclasses.asdict(self)
         d["joint_map"] = None if self.joint_map is None else self.joint_map.to_json()
+        if directory is not None:
+            d["data"] = portable_path(self.data, directory)
         return d
 
     @classmethod
-    def from_json(cls, d: dict) -> "BaseSettings":
+    def from_json(cls, d: dict, directory: str | os.PathLike | None = None) -> "BaseSettings":
+        """Settings read from JSON; with ``directory`` a relative ``data`` is found from there."""
         d = dict(d)
         d["joint_map"] = JointMap.from_json(d.get("joint_map"))
         d["styles"] = tuple(d["styles"])
         d["gaits"] = None if d.get("gaits") is None else tuple(d["gaits"])
+        if directory is not None:
+            d["data"] = located_path(d["data"], directory)
         return cls(**d)
+
+    def resolved(self) -> "BaseSettings":
+        """The same settings with ``data`` an absolute path."""
+        return dataclasses.replace(self, data=str(Path(self.data).resolve()))
+
+
+def portable_path(path: str | os.PathLike, directory: str | os.PathLike) -> str:
+    """How a run folder's JSON in ``directory`` records ``path``: relative to ``directory`` when
+    ``path`` lies inside the run folder (``directory``'s parent), else absolute, so copying or
+    moving the run folder, or using it from another working directory, keeps it valid."""
+    path, directory = Path(path).resolve(), Path(directory).resolve()
+    if directory.parent in path.parents:
+        return os.path.relpath(path, directory)
+    return str(path)
+
+
+def located_path(recorded: str, directory: str | os.PathLike) -> str:
+    """The path that :func:`portable_path` recorded in ``directory`` (a relative path found from
+    ``directory``; a relative path of a run written before paths were recorded this way is read
+    from the working directory, as it was written)."""
+    if Path(recorded).is_absolute():
+        return recorded
+    here = Path(directory) / recorded
+    if here.exists() or not Path(recorded).exists():
+        return str(here.resolve())
+    return str(Path(recorded).resolve())
 
 
 def paper_base_settings(mocap: str | os.PathLike, epochs: int = 20) -> BaseSettings:
@@ -184,9 +218,10 @@ def train_base(settings: BaseSettings, directory: str | os.PathLike, *, cache: s
     """Train the base into ``directory`` (resuming a partial run there; a finished one is only
     loaded). A folder holding a base trained with other settings is refused."""
     directory = Path(directory)
+    settings = settings.resolved()
     path = _settings_file(directory)
     if path.is_file():
-        old = BaseSettings.from_json(json.loads(path.read_text()))
+        old = BaseSettings.from_json(json.loads(path.read_text()), directory).resolved()
         if old != settings:
             changed = [f.name for f in dataclasses.fields(settings)
                        if getattr(old, f.name) != getattr(settings, f.name)]
@@ -195,7 +230,7 @@ def train_base(settings: BaseSettings, directory: str | os.PathLike, *, cache: s
     dataset, data, model, config = _base_parts(settings, cache, progress)
     directory.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json_text(settings.to_json()))
+    tmp.write_text(json_text(settings.to_json(directory)))
     os.replace(tmp, path)
     x_norm, y_norm = dataset.normalisers()
     x_norm.save(directory / "input_norm.npz")
@@ -233,7 +268,7 @@ def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None =
     if not path.is_file():
         raise PipelineError(f"no base model in {directory} (no base.json): train one first with "
                             "`jaxstyle train-base --data PATH --run RUN` (or `jaxstyle demo`)")
-    settings = BaseSettings.from_json(json.loads(path.read_text()))
+    settings = BaseSettings.from_json(json.loads(path.read_text()), directory)
     if not Path(settings.data).is_dir():
         raise PipelineError(f"the base in {directory} was trained on {settings.data}, which is gone")
     dataset, _, model, config = _base_parts(settings, cache, progress)
@@ -255,7 +290,7 @@ def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None =
 def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLike, *,
               rates: Sequence[float] = DEFAULT_RATES, epochs: int = 100, adapter_dropout_only: bool = False,
               matmul_dtype: str = "float32", skeleton: Motion | None = None, cache: str | os.PathLike | None = None,
-              progress: bool = True, shard: bool | None = None, write: bool = True
+              progress: bool = True, shard: bool | None = None, write: bool = True, replace: bool = False
               ) -> tuple[selection.SweepResult, dict[str, Path], datasets.Dataset]:
     """Fine-tune a new adapter per (few-shot set of ``specs``, rate) on the frozen base in one compiled
     sweep, validate and check them closed-loop (on ``skeleton``, default the base's), choose a rate
@@ -265,7 +300,9 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
 
     ``shard``: spread the sets over all devices (default: when ``jax.distributed`` runs several
     processes; every process then calls this alike and gets the whole result). ``write=False``
-    writes nothing (the report's paths come back empty): the other processes of a multi-process run."""
+    writes nothing (the report's paths come back empty): the other processes of a multi-process run.
+    An earlier report in ``directory`` is merged (its other sets kept, see
+    :func:`jaxstyle.mason2018.selection.write_report`) unless ``replace``."""
     if shard is None:
         shard = jax.process_count() > 1
     if not specs:
@@ -285,10 +322,16 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
                                      progress=progress, shard=shard)
     if not write:
         return result, {}, shots
-    paths = selection.write_report(result, directory, config)
-    meta = {"specs": [s.to_json() for s in specs], "rates": list(config.rates), "epochs": epochs,
-            "styles": list(result.styles), "seconds": result.seconds}
     path = Path(directory) / "sweep.json"
+    kept = []
+    if not replace and path.is_file() and (Path(directory) / "chosen_rates.json").is_file():
+        earlier = _read_sweep_json(path)
+        kept = [d for d in earlier.get("specs", []) if d.get("style") not in result.styles]
+    paths = selection.write_report(result, directory, config, replace=replace)
+    kept_styles = list(dict.fromkeys(d.get("style") for d in kept))
+    meta = {"specs": kept + [_portable_spec(s, directory) for s in specs], "rates": list(config.rates),
+            "epochs": epochs,
+            "styles": kept_styles + list(result.styles), "seconds": result.seconds}
     path.with_name("sweep.json.tmp").write_text(json_text(meta))
     os.replace(path.with_name("sweep.json.tmp"), path)
     paths["sweep"] = path
@@ -336,11 +379,33 @@ def load_sweep(directory: str | os.PathLike, base: Base, *, cache: str | os.Path
     for name in ("sweep.json", "chosen_rates.json"):
         if not (directory / name).is_file():
             raise PipelineError(f"no few-shot sweep in {directory} (no {name}): run `jaxstyle sweep --run RUN` first")
-    meta = json.loads((directory / "sweep.json").read_text())
-    shots = build([ClipSpec.from_json(s) for s in meta["specs"]], cache)
+    meta = _read_sweep_json(directory / "sweep.json")
+    chosen = selection.read_chosen(directory / "chosen_rates.json")
+    try:
+        specs = [ClipSpec.from_json({**s, "path": located_path(s["path"], directory)}) for s in meta["specs"]]
+    except (KeyError, TypeError, ValueError) as e:
+        raise PipelineError(f"{directory / 'sweep.json'}: 'specs' is not a list of clip specs ({e})") from None
+    shots = build(specs, cache)
     if base.settings.contacts:
         shots = with_contacts(shots, base.dataset)
-    return json.loads((directory / "chosen_rates.json").read_text()), shots
+    return chosen, shots
+
+
+def _portable_spec(spec: ClipSpec, directory) -> dict:
+    d = spec.to_json()
+    d["path"] = portable_path(spec.path, directory)
+    return d
+
+
+def _read_sweep_json(path: Path) -> dict:
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        line = f", line {e.lineno}" if isinstance(e, json.JSONDecodeError) else ""
+        raise PipelineError(f"{path}{line}: not valid JSON ({getattr(e, 'msg', e)})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("specs", []), list):
+        raise PipelineError(f"{path}: expected an object with a list of 'specs'")
+    return meta
 
 
 def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.Dataset | None, chosen: dict | None,

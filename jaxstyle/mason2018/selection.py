@@ -50,6 +50,7 @@ import numpy as np
 
 from jaxstyle.control import controller
 from jaxstyle.data.datasets import Dataset
+from jaxstyle.data.folders import PipelineError
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import fewshot
@@ -306,33 +307,28 @@ def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], data
                        passed, tuple(len(r) for r in data.train_rows), tuple(len(r) for r in data.val_rows), timings)
 
 
-def write_report(result: SweepResult, directory: str | os.PathLike, config: fewshot.SweepConfig) -> dict[str, Path]:
+def write_report(result: SweepResult, directory: str | os.PathLike, config: fewshot.SweepConfig, *,
+                 replace: bool = False) -> dict[str, Path]:
     """Write ``results.csv``, ``heatmap.png``, ``chosen_rates.json`` and ``adapters/<style>/`` (an
-    orbax checkpoint of the chosen adapter, its config beside it) under ``directory``, replacing
-    an earlier report's files there (each file is written whole, then renamed); returns the
-    paths."""
+    orbax checkpoint of the chosen adapter, its config beside it) under ``directory``; returns the
+    paths.
+
+    An earlier report there is merged, not replaced: its sets that this result does not hold keep
+    their rows of ``results.csv``, their entries of ``chosen_rates.json`` and their adapters; a set
+    swept again is updated. ``replace``: start over (the earlier sets' entries and adapters are
+    removed). The heatmap shows this result's sets. Each file is written whole, then renamed;
+    ``chosen_rates.json``, the index that synthesis and play read, is written last, so a run
+    killed midway never names an adapter that is not there."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = {"csv": directory / "results.csv", "heatmap": directory / "heatmap.png",
              "chosen": directory / "chosen_rates.json", "adapters": directory / "adapters"}
-    tmp = paths["csv"].with_name("results.csv.tmp")
-    with open(tmp, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["style", "rate", "train_rows", "validation_rows", "train_loss", "validation_loss"]
-                   + [f"rollout_{k}" for k in ROLLOUT_FIELDS] + ["chosen"])
-        for s, style in enumerate(result.styles):
-            for r, rate in enumerate(result.rates):
-                w.writerow([style, rate, result.train_rows[s], result.validation_rows[s],
-                            f"{result.train_loss[s, r]:.6f}", f"{result.validation_loss[s, r]:.6f}"]
-                           + [_fmt(result.rollout[k][s, r]) for k in ROLLOUT_FIELDS]
-                           + [int(result.chosen[s] == r)])
-    os.replace(tmp, paths["csv"])
-    plot_heatmap(result, paths["heatmap"])
-    chosen = {style: {"rate": result.rates[int(result.chosen[s])], "validation_loss": float(result.validation_loss[
-        s, result.chosen[s]]), "passed_check": bool(result.chosen_passed[s])} for s, style in enumerate(result.styles)}
-    tmp = paths["chosen"].with_name("chosen_rates.json.tmp")
-    tmp.write_text(json_text(chosen))  # strict JSON: a NaN loss is null
-    os.replace(tmp, paths["chosen"])
+    earlier = {} if replace or not paths["chosen"].is_file() else read_chosen(paths["chosen"])
+    earlier = {k: v for k, v in earlier.items() if k not in result.styles}
+    kept_rows = []
+    if earlier and paths["csv"].is_file():
+        with open(paths["csv"], newline="") as f:
+            kept_rows = [row for row in list(csv.reader(f))[1:] if row and row[0] in earlier]
     for s, style in enumerate(result.styles):
         # written beside, then renamed over any earlier report's adapter
         final = paths["adapters"] / style
@@ -345,7 +341,58 @@ def write_report(result: SweepResult, directory: str | os.PathLike, config: fews
         if final.exists():
             shutil.rmtree(final)
         os.replace(tmp, final)
+    tmp = paths["csv"].with_name("results.csv.tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["style", "rate", "train_rows", "validation_rows", "train_loss", "validation_loss"]
+                   + [f"rollout_{k}" for k in ROLLOUT_FIELDS] + ["chosen"])
+        w.writerows(kept_rows)
+        for s, style in enumerate(result.styles):
+            for r, rate in enumerate(result.rates):
+                w.writerow([style, rate, result.train_rows[s], result.validation_rows[s],
+                            f"{result.train_loss[s, r]:.6f}", f"{result.validation_loss[s, r]:.6f}"]
+                           + [_fmt(result.rollout[k][s, r]) for k in ROLLOUT_FIELDS]
+                           + [int(result.chosen[s] == r)])
+    os.replace(tmp, paths["csv"])
+    plot_heatmap(result, paths["heatmap"])
+    chosen = {style: {"rate": result.rates[int(result.chosen[s])], "validation_loss": float(result.validation_loss[
+        s, result.chosen[s]]), "passed_check": bool(result.chosen_passed[s])} for s, style in enumerate(result.styles)}
+    tmp = paths["chosen"].with_name("chosen_rates.json.tmp")
+    tmp.write_text(json_text({**earlier, **chosen}))  # strict JSON: a NaN loss is null
+    os.replace(tmp, paths["chosen"])
+    if replace and paths["adapters"].is_dir():
+        for folder in paths["adapters"].iterdir():
+            if folder.is_dir() and folder.name not in result.styles and not folder.name.startswith("."):
+                shutil.rmtree(folder)
     return paths
+
+
+def read_chosen(path: str | os.PathLike) -> dict[str, dict]:
+    """A ``chosen_rates.json``, checked: an object of set name -> ``{"rate": a number in [0, 1),
+    "validation_loss": a number or null, "passed_check": true or false}``. A file that is not so
+    (hand-edited, damaged) raises a PipelineError naming the file and the key."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        line = f", line {e.lineno}" if isinstance(e, json.JSONDecodeError) else ""
+        raise PipelineError(f"{path}{line}: not valid JSON ({getattr(e, 'msg', e)})") from None
+    if not isinstance(data, dict):
+        raise PipelineError(f"{path}: expected an object of set name -> chosen rate, got {type(data).__name__}")
+    for name, info in data.items():
+        where = f"{path}: {name!r}"
+        if not isinstance(info, dict) or "rate" not in info:
+            raise PipelineError(f"{where}: expected an object with a 'rate'")
+        rate = info["rate"]
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 <= rate < 1:
+            raise PipelineError(f"{where}: 'rate' must be a dropout rate in [0, 1), got {json.dumps(rate)}")
+        loss = info.get("validation_loss")
+        if loss is not None and (isinstance(loss, bool) or not isinstance(loss, (int, float))):
+            raise PipelineError(f"{where}: 'validation_loss' must be a number or null, got {json.dumps(loss)}")
+        if not isinstance(info.get("passed_check", True), bool):
+            raise PipelineError(f"{where}: 'passed_check' must be true or false, got "
+                                 f"{json.dumps(info['passed_check'])}")
+    return data
 
 
 def load_adapter(directory: str | os.PathLike, config: pfnn.PFNNConfig) -> dict:

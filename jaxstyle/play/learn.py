@@ -41,20 +41,62 @@ def style_name(path: str | Path, taken: Sequence[str] = ()) -> str:
     return name
 
 
-def check_clip(path: str | Path, model: PlayModel) -> None:
+def clip_joint_names(path: str | Path) -> tuple[str, ...]:
+    """The joint names of the BVH file at ``path`` (read in full, so a malformed file is refused
+    with its line); small enough to return from a reader process (:class:`ClipReader`)."""
+    return tuple(read_bvh(path).names)
+
+
+def check_clip(path: str | Path, model: PlayModel, read_names: Callable[[Path], tuple[str, ...]] = clip_joint_names
+               ) -> None:
     """Refuse, with one line naming the file, a clip that is not BVH or not of the base's skeleton
-    (joint names and count), before any training starts."""
+    (joint names and count), before any training starts. ``read_names``: how the file is read
+    (default here; the live server passes :meth:`ClipReader.names`, another process)."""
     path = Path(path)
     if not path.is_file():
         raise PlayError(f"{path}: no such file")
     try:
-        motion = read_bvh(path)
+        names = read_names(path)
     except UnicodeDecodeError:
         raise PlayError(f"{path}: not a BVH file (not text)") from None
     skeleton = model.base.skeleton
-    if tuple(motion.names) != tuple(skeleton.names):
-        raise PlayError(f"{path}: a BVH of another skeleton ({motion.num_joints} joints, root {motion.names[0]!r}); "
+    if tuple(names) != tuple(skeleton.names):
+        raise PlayError(f"{path}: a BVH of another skeleton ({len(names)} joints, root {names[0]!r}); "
                         f"the base was trained on {skeleton.num_joints} joints, root {skeleton.names[0]!r}")
+
+
+class ClipReader:
+    """Reads clips in a separate process (spawned once, kept): parsing a large file there holds
+    neither the live server's session lock nor its interpreter lock, so the render loop keeps its
+    frame rate; a read that takes longer than ``timeout`` seconds is stopped (the process is
+    ended and a fresh one spawned for the next)."""
+
+    def __init__(self, timeout: float = 60.0):
+        self.timeout = float(timeout)
+        self._pool = None
+        self._lock = threading.Lock()
+
+    def names(self, path: Path) -> tuple[str, ...]:
+        import multiprocessing
+
+        with self._lock:
+            if self._pool is None:
+                self._pool = multiprocessing.get_context("spawn").Pool(1)
+            pending = self._pool.apply_async(clip_joint_names, (path,))
+            try:
+                return pending.get(self.timeout)
+            except multiprocessing.TimeoutError:
+                self._end()
+                raise PlayError(f"{path}: reading it took over {self.timeout:g} s; stopped") from None
+
+    def _end(self) -> None:
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool = None
+
+    def close(self) -> None:
+        with self._lock:
+            self._end()
 
 
 class Learner:

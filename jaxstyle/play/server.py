@@ -9,9 +9,17 @@ command-palette hotkeys (viser sends key presses, not key releases, so a key set
 direction that holds until the next key, a click or Space).
 
 Threads: viser serves the page and runs the GUI callbacks in its own threads; one render thread
-steps the session and updates the scene every 1/60 s; learning a style runs in another
-(:class:`jaxstyle.play.learn.Learner`) and saving a recording in a short-lived one, so nothing
-blocks the render loop. A lock serialises every access to the session.
+steps the session and updates the scene every 1/60 s; reading and checking a clip the page names
+or uploads runs in a worker thread (one at a time), learning a style in another
+(:class:`jaxstyle.play.learn.Learner`), loading a run folder and saving a recording in short-lived
+ones, so no request blocks the render loop: the lock that serialises access to the session is
+never held while a file is read.
+
+Trust (:mod:`jaxstyle.play.guard`, docs/play.md): only the page's own origin may connect (and,
+with ``token``, only with it); files and run folders the page names must lie under the allowed
+roots (the run folder, ``data_dirs``; run folders under ``runs_root``); uploads are capped at
+``max_upload_bytes``, written under a fresh name and removed when refused; messages about a file
+never quote its contents.
 
 Models: a run folder may hold the 2018 PFNN (``RUN/base``) and a trained 2022 model (``RUN/lpn``);
 the page's "Model" choice switches between them (each loaded and compiled once per server, then
@@ -26,10 +34,12 @@ keeps running.
 
 from __future__ import annotations
 
+import collections
 import datetime
 import math
 import threading
 import time
+import uuid
 import warnings
 from pathlib import Path
 from typing import Callable
@@ -37,7 +47,7 @@ from typing import Callable
 import numpy as np
 
 from jaxstyle.errors import JaxstyleError
-from jaxstyle.play import learn
+from jaxstyle.play import guard, learn
 from jaxstyle.play.session import (
     PFNN,
     PLAY_DIR,
@@ -63,6 +73,7 @@ LEARN_2018_ONLY = ("learning a style live is the 2018 few-shot sweep (Mason et a
 NO_2018_MODEL = ("learning a style live is the 2018 few-shot sweep (Mason et al. 2018), and this run folder has no "
                  "2018 model (RUN/base); a 2022 model learns new styles with `jaxstyle lpn --clip FILE`")
 STEER_BUTTONS = {"Left": "A", "Forward": "W", "Back": "S", "Right": "D"}
+MAX_UPLOAD_BYTES = 8_000_000  # an upload's default cap (a 10 s 100STYLE clip is about 0.1 MB)
 
 
 def _one_line(e: BaseException) -> str:
@@ -124,7 +135,8 @@ class PlayServer:
     ``start()`` serves the page, loads the run (a failure shows in the page) and starts the render
     loop; ``stop()`` ends both. What the page shows is also here for tests and scripts:
     ``session`` (``None`` until a run is loaded), ``message`` (the last error or note),
-    ``step_ms`` / ``frame_ms`` (the controller step and the whole frame, smoothed) and ``learner``
+    ``step_ms`` / ``frame_ms`` (the controller step and the whole frame, smoothed), ``frame_times``
+    (``time.monotonic()`` of the last minute's frames) and ``learner``
     (the 2018 model's; ``None`` without one).
 
     ``model``: the model to start with (``pfnn`` or a 2022 key such as ``lpn-film``,
@@ -133,8 +145,17 @@ class PlayServer:
 
     def __init__(self, run_dir: str | Path, *, host: str = "127.0.0.1", port: int = 8080, learn_epochs: int = 40,
                  learn_rates=None, record_seconds: float = 10.0, verbose: bool = False, model: str | None = None,
-                 log: Callable[[str], None] = lambda _: None):
+                 log: Callable[[str], None] = lambda _: None, token: str | None = None,
+                 data_dirs: tuple[str | Path, ...] = (), runs_root: str | Path | None = None,
+                 max_upload_bytes: int = MAX_UPLOAD_BYTES):
         self.run_dir = Path(run_dir)
+        self.token = token
+        self.data_dirs = tuple(Path(d) for d in data_dirs)
+        self.runs_root = Path(runs_root) if runs_root is not None else self.run_dir.resolve().parent
+        self.max_upload_bytes = int(max_upload_bytes)
+        self._reading = threading.Lock()  # held while a clip the page named is read and checked
+        self._pending_upload: Path | None = None
+        self._reader = learn.ClipReader()
         self.model_key = model
         self._models: dict[tuple[str, str], AnyPlayModel] = {}  # loaded once per (run folder, model)
         self._learners: dict[int, tuple[PlayModel, learn.Learner]] = {}  # per 2018 model (kept alive with it)
@@ -149,6 +170,7 @@ class PlayServer:
         self.message = ""
         self.step_ms = self.frame_ms = float("nan")
         self.last_recording: list[Path] = []
+        self.frame_times: collections.deque[float] = collections.deque(maxlen=3600)  # when recent frames were drawn
         self.lock = threading.RLock()
         self._running = threading.Event()
         self._thread: threading.Thread | None = None
@@ -165,9 +187,20 @@ class PlayServer:
         ``benchmarks/play.py``)."""
         import viser
 
+        _check_address(self.host)
         self._server = viser.ViserServer(host=self.host, port=self.port, verbose=self.verbose)
         self.port = self._server.get_port()
+        self.admission = guard.Admission(self.host, self.port, self.token)
+        try:
+            guard.install(self._server, self.admission, self.log)
+        except PlayError:
+            self._server.stop()
+            raise
+        self._check_listening()
         self.log(f"jaxstyle play: open {self.url} in a browser (Ctrl-C stops)")
+        if self.admission.every_interface and self.token is None:
+            self.log("warning: serving on every interface without --token: any machine that reaches this port can "
+                     "steer, learn and record here")
         self._scene_setup()
         self._gui_setup()
         if load:
@@ -186,10 +219,29 @@ class PlayServer:
             self._thread.join(5)
         if self._server is not None:
             self._server.stop()
+        self._reader.close()
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}"
+        """The page's address (with the token when there is one)."""
+        return guard.Admission(self.host, self.port, self.token).page_url()
+
+    def _check_listening(self, timeout: float = 5.0) -> None:
+        """A PlayError unless the server accepts connections on its port within ``timeout``
+        (viser's server thread dies quietly on an address it cannot bind or look up)."""
+        import socket
+
+        host = "127.0.0.1" if self.host in guard.EVERY_INTERFACE else self.host.strip("[]")
+        t0 = time.monotonic()
+        while True:
+            try:
+                with socket.create_connection((host, self.port), timeout=1.0):
+                    return
+            except OSError as e:
+                if time.monotonic() - t0 > timeout:
+                    self._server.stop()
+                    raise PlayError(f"cannot serve on {self.host}:{self.port} ({e.strerror or e})") from None
+                time.sleep(0.05)
 
     def load_run(self, run_dir: str | Path, model: AnyPlayModel | None = None, key: str | None = None) -> bool:
         """Load the run folder's model ``key`` (``pfnn``: the 2018 base, its few-shot and learned
@@ -287,6 +339,22 @@ class PlayServer:
                 self.show_error(_one_line(e))
             except Exception as e:  # noqa: BLE001 - a bug in a callback must not end the page
                 self.show_error(f"internal error: {type(e).__name__}: {_one_line(e)}")
+
+        return run
+
+    def _unlocked(self, fn: Callable) -> Callable:
+        """A GUI callback that reads files: run without the session lock (the render loop goes
+        on), bad input shown in the page without quoting any file."""
+
+        def run(*args):
+            try:
+                if self.session is None:
+                    raise PlayError("no model loaded: give a run folder with a trained base")
+                fn(*args)
+            except (JaxstyleError, ValueError, KeyError, OSError) as e:
+                self.show_error(guard.without_content(_one_line(e)))
+            except Exception as e:  # noqa: BLE001 - a bug in a callback must not end the page
+                self.show_error(f"internal error: {type(e).__name__}: {guard.without_content(_one_line(e))}")
 
         return run
 
@@ -427,6 +495,7 @@ class PlayServer:
                     if self.session is not None:
                         frame = self.session.step()
                         self._update_scene(frame, self.session.targets())
+                        self.frame_times.append(time.monotonic())
                         self.step_ms = _smooth(self.step_ms, frame.step_ms)
                         self.frame_ms = _smooth(self.frame_ms, 1e3 * (time.perf_counter() - t0))
                         if self.session.frames % 15 == 0:
@@ -502,8 +571,8 @@ class PlayServer:
         g["blend_on"].on_click(lambda _: self._guarded(self._on_blend)())
         for handle in g["weights"] + g["blend"]:
             handle.on_update(lambda _: self._guarded(self._on_blend_change)())
-        g["upload"].on_upload(lambda e: self._guarded(self._on_upload)(e.target.value))
-        g["learn"].on_click(lambda _: self._guarded(lambda: self.learn(g["path"].value))())
+        g["upload"].on_upload(lambda e: self._unlocked(self._on_upload)(e.target.value))
+        g["learn"].on_click(lambda _: self._unlocked(lambda: self.learn(g["path"].value))())
         g["record"].on_click(lambda _: self._guarded(lambda: self.record(g["seconds"].value))())
         g["load"].on_click(lambda _: self._guarded_load())
         for key in ("W", "A", "S", "D", "arrowup", "arrowleft", "arrowdown", "arrowright"):
@@ -551,7 +620,12 @@ class PlayServer:
             raise PlayError(f"{self.session.model.title} plays: {self._learn_refusal()}")
 
     def _guarded_load(self) -> None:
-        path = self._gui["run"].value.strip()
+        """The page's "Run folder": a folder under ``runs_root`` only, loaded in a thread."""
+        try:
+            path = guard.confine(self._gui["run"].value, [self.runs_root], "run folder")
+        except PlayError as e:
+            self.show_error(_one_line(e))
+            return
         threading.Thread(target=self.load_run, args=(path,), daemon=True).start()
 
     def session_remove(self) -> None:
@@ -606,27 +680,81 @@ class PlayServer:
         self._gui["style"].value = name
 
     # --- learning -----------------------------------------------------------------------------
+    def read_roots(self) -> tuple[Path, ...]:
+        """The folders under which the page may name a BVH file: the run folder (its uploads
+        included) and the server's ``data_dirs``."""
+        return (self.run_dir, *self.data_dirs)
+
     def _on_upload(self, uploaded) -> None:
+        """An upload: refused above the size cap (nothing written); otherwise written under a
+        fresh folder (``RUN/play/uploads/<random>/<name>``, so it never replaces another upload,
+        such as a learned style's source) and read and learned like a named file; removed again
+        when refused or when learning it fails."""
         if not uploaded.name:
             return
         self._check_learnable()
-        folder = self.run_dir / PLAY_DIR / "uploads"
-        folder.mkdir(parents=True, exist_ok=True)
-        path = folder / Path(uploaded.name).name
-        path.write_bytes(uploaded.content)
-        self.learn(str(path))
+        name = Path(uploaded.name).name
+        size = len(uploaded.content)
+        if size > self.max_upload_bytes:
+            raise PlayError(f"{name}: the upload is {size / 1e6:.1f} MB, more than the {self.max_upload_bytes / 1e6:g} "
+                            "MB allowed (jaxstyle play --max-upload-mb raises it)")
+        folder = self.run_dir / PLAY_DIR / "uploads" / uuid.uuid4().hex[:12]
+        folder.mkdir(parents=True)
+        path = folder / (learn.style_name(name) + ".bvh")
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_bytes(uploaded.content)
+        tmp.replace(path)
+        self._read_then_learn(path, upload=True)
 
-    def learn(self, path: str) -> str:
-        """Start learning the BVH file at ``path`` in the background (progress in the page)."""
-        if not str(path).strip():
-            raise PlayError("give the path of a BVH file (or upload one)")
+    def learn(self, path: str) -> threading.Thread:
+        """Learn the BVH file at ``path`` (it must lie under :meth:`read_roots`): read and checked
+        in a worker thread (a bad file's refusal then shows in the page), then learned in the
+        background (progress in the page). Returns the worker thread."""
         self._check_learnable()
-        path = Path(str(path).strip()).expanduser()
-        learn.check_clip(path, self.session.model)  # bad files are refused at once
-        name = self.learner.start(path)
-        self._gui["progress"].value = 0.0
-        self._gui["learn_note"].content = f"{name}: starting ..."
-        return name
+        resolved = guard.confine(path, self.read_roots(), "BVH file")
+        return self._read_then_learn(resolved)
+
+    def _read_then_learn(self, path: Path, upload: bool = False) -> threading.Thread:
+        if self.learner.busy:
+            self._discard_upload(path if upload else None)
+            raise PlayError("a style is being learned already; wait until it is done")
+        if not self._reading.acquire(blocking=False):
+            self._discard_upload(path if upload else None)
+            raise PlayError("a clip is being read already; wait until it is checked")
+        model, learner = self.session.model, self.learner
+        self._gui["learn_note"].content = f"{path.name}: reading ..."
+
+        def work() -> None:
+            try:
+                learn.check_clip(path, model, self._reader.names)  # in another process, off the lock
+                with self.lock:
+                    name = learner.start(path)
+                    self._pending_upload = path if upload else None
+                self._gui["progress"].value = 0.0
+                self._gui["learn_note"].content = f"{name}: starting ..."
+            except (JaxstyleError, ValueError, KeyError, OSError) as e:
+                self._discard_upload(path if upload else None)
+                self._gui["learn_note"].content = ""
+                self.show_error(guard.without_content(_one_line(e)))
+            except Exception as e:  # noqa: BLE001 - a bug here must not end the page
+                self._discard_upload(path if upload else None)
+                self.show_error(f"internal error: {type(e).__name__}: {guard.without_content(_one_line(e))}")
+            finally:
+                self._reading.release()
+
+        thread = threading.Thread(target=work, name="jaxstyle-play-read", daemon=True)
+        thread.start()
+        return thread
+
+    def _discard_upload(self, path: Path | None) -> None:
+        """Remove a refused upload (its fresh folder too)."""
+        if path is None:
+            return
+        path.unlink(missing_ok=True)
+        try:
+            path.parent.rmdir()
+        except OSError:
+            pass
 
     def _learned(self, style: Style, model: PlayModel) -> None:
         """A style learned on the 2018 ``model`` joins its styles (and the dropdown if it plays)."""
@@ -638,12 +766,17 @@ class PlayServer:
             else:
                 model.styles[style.name] = style
                 note = f" (for the {model.title}: choose it under Model to play it)"
+        with self.lock:
+            self._pending_upload = None  # kept: the learned style's source
         message = self._learners[id(model)][1].status()[2] + note
         self._gui["progress"].value = 100.0
         self._gui["learn_note"].content = message
         self.log(message)
 
     def _learn_failed(self, message: str) -> None:
+        with self.lock:
+            pending, self._pending_upload = self._pending_upload, None
+        self._discard_upload(pending)
         self._gui["progress"].value = 0.0
         self._gui["learn_note"].content = message
         self.show_error(message)
@@ -667,6 +800,24 @@ class PlayServer:
                 self.show_error(f"recording: {_one_line(e)}")
 
         threading.Thread(target=save, name="jaxstyle-play-record", daemon=True).start()
+
+
+def _check_address(host: str) -> None:
+    """A PlayError unless ``host`` is an address of this machine to serve on (viser's server
+    waits forever on a name it cannot look up or bind)."""
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host.strip("[]") or None, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (OSError, UnicodeError) as e:
+        raise PlayError(f"--host {host}: not an address or known host name ({getattr(e, 'strerror', None) or e})") \
+            from None
+    family, kind, proto, _, address = infos[0]
+    try:
+        with socket.socket(family, kind, proto) as probe:
+            probe.bind(address)
+    except OSError as e:
+        raise PlayError(f"--host {host}: not an address of this machine ({e.strerror or e})") from None
 
 
 def _view(client) -> tuple[np.ndarray, np.ndarray] | None:

@@ -230,7 +230,7 @@ def _sweep_styles(directory: Path, base: pipeline.Base, kind: str) -> list[Style
     chosen_path = directory / "chosen_rates.json"
     if not chosen_path.is_file():
         return []
-    chosen = json.loads(chosen_path.read_text())
+    chosen = selection.read_chosen(chosen_path)
     return [Style(name, kind, float(info["rate"]), selection.load_adapter(directory / "adapters" / name, base.model))
             for name, info in chosen.items() if (directory / "adapters" / name).is_dir()]
 
