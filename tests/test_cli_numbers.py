@@ -67,3 +67,15 @@ def test_finite_accepts_exactly_the_finite_numbers(text):
     else:
         with pytest.raises(argparse.ArgumentTypeError):
             finite(text)
+
+
+@pytest.mark.parametrize("flag, value, message", [
+    ("--synth-seconds", "1e9", "--synth-seconds must be at most 3600 (one path), got 1e+09"),
+    ("--speed", "1e6", "--speed must be at most 10 m/s, got 1e+06"),
+    ("--speed", "-1", "--speed must be positive and finite, got -1"),
+])
+def test_synthesis_lengths_and_speeds_are_bounded(flag, value, message, tmp_path, capsys):
+    assert main(["demo", "--run", str(tmp_path / "run"), f"{flag}={value}", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == f"jaxstyle demo: error: {message}"
+    assert not (tmp_path / "run" / "base").exists()  # refused before any training

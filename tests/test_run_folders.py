@@ -122,3 +122,17 @@ def test_a_damaged_config_json_is_refused_and_kept(tmp_path, capsys):
     config.write_text(json.dumps({"demo": {"epochs": 3}}))
     Run(tmp_path, "sweep", {"sets": ["Angry"]}, ["sweep"]).close()
     assert json.loads(config.read_text()) == {"demo": {"epochs": 3}, "sweep": {"sets": ["Angry"]}}
+
+
+def test_an_adapter_of_a_base_of_other_sizes_is_named_as_such_not_as_damage(tmp_path):
+    from jaxstyle.train.checkpoint import CheckpointMismatchError
+
+    config = fewshot.SweepConfig(model=MODEL, epochs=1, rates=(0.1, 0.5))
+    paths = selection.write_report(fake_result(["Angry"]), tmp_path, config)
+    other = pfnn.PFNNConfig(input_size=6, hidden_size=8, output_size=5, rank=4)
+    # rank 2 saved, rank 4 asked for: which array orbax reports first varies
+    with pytest.raises(CheckpointMismatchError, match=r"of a model of other sizes: an array is \((.*\b)?2(\b.*)?\) "
+                                                      r"there and \((.*\b)?4(\b.*)?\) in this model"):
+        selection.load_adapter(paths["adapters"] / "Angry", other)
+    assert not (paths["adapters"] / "Angry" / "damaged").exists()
+    assert selection.load_adapter(paths["adapters"] / "Angry", MODEL) is not None  # its own model still reads it

@@ -412,6 +412,19 @@ def check_rates(rates, flag: str = "--rates") -> None:
         raise CLIError(f"{flag} must be dropout rates in [0, 1), got {' '.join(f'{r:g}' for r in rates)}")
 
 
+MAX_SYNTH_SECONDS = 3600.0  # one path's length at most (216,000 frames at 60 fps)
+MAX_SPEED = 10.0  # m/s: a sprinter's top speed; the networks were trained on walking and running
+
+
+def check_synthesis(args) -> None:
+    """``--synth-seconds`` and ``--speed`` within what synthesis can draw and the networks know."""
+    seconds, speed = getattr(args, "synth_seconds", None), getattr(args, "speed", None)
+    if seconds is not None and seconds > MAX_SYNTH_SECONDS:
+        raise CLIError(f"--synth-seconds must be at most {MAX_SYNTH_SECONDS:g} (one path), got {seconds:g}")
+    if speed is not None and speed > MAX_SPEED:
+        raise CLIError(f"--speed must be at most {MAX_SPEED:g} m/s, got {speed:g}")
+
+
 def check_positive(args, *names: str) -> None:
     for name in names:
         value = getattr(args, name, None)

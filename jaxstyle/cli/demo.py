@@ -17,6 +17,7 @@ from jaxstyle.cli.common import (
     add_sweep_args,
     add_synth_args,
     check_positive,
+    check_synthesis,
     elapsed,
     finite,
     joint_map,
@@ -220,6 +221,7 @@ def run(args, run: Run) -> None:
 
     t_all = time.perf_counter()
     check_positive(args, "seconds", "synth_seconds", "data_seconds", "speed")
+    check_synthesis(args)
     run.say(f"jaxstyle demo on {machine()}" + ("" if args.model == "pfnn" else f" (--model {args.model})"))
     root = _data_root(args, run)
     run.save_settings(vars(args))  # with the defaults the data folder implied

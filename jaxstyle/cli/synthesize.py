@@ -13,6 +13,7 @@ from jaxstyle.cli.common import (
     add_common,
     add_synth_args,
     check_positive,
+    check_synthesis,
     elapsed,
     finite,
     progress,
@@ -131,6 +132,7 @@ def run_lpn(args, run: Run) -> None:
 
 def run(args, run: Run) -> None:
     check_positive(args, "synth_seconds", "every", "speed")
+    check_synthesis(args)
     if args.model != "pfnn":
         return run_lpn(args, run)
     from jaxstyle.mason2018 import pipeline

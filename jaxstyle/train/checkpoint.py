@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import shutil
 import time
 import warnings
@@ -35,6 +36,27 @@ from jaxstyle.errors import JaxstyleError
 
 class CheckpointError(JaxstyleError):
     """A checkpoint folder with no usable step (every step damaged), or a damaged step asked for."""
+
+
+class CheckpointMismatchError(CheckpointError):
+    """A readable checkpoint of another model: its arrays have other shapes (or names) than the
+    model restoring it (an adapter of a base of other sizes, say). Not damage: nothing is set aside."""
+
+
+def _mismatch(state: Any, like: Any) -> str | None:
+    """How ``state`` (restored) differs from ``like`` in names or shapes, or None."""
+    saved, _ = jax.tree_util.tree_flatten_with_path(state)
+    wanted, _ = jax.tree_util.tree_flatten_with_path(like)
+    saved_names = [jax.tree_util.keystr(k) for k, _ in saved]
+    wanted_names = [jax.tree_util.keystr(k) for k, _ in wanted]
+    if saved_names != wanted_names:
+        extra = sorted(set(saved_names) - set(wanted_names))[:3]
+        missing = sorted(set(wanted_names) - set(saved_names))[:3]
+        return f"other arrays (saved but not in this model: {extra or 'none'}; missing: {missing or 'none'})"
+    for name, (_, a), (_, b) in zip(saved_names, saved, wanted, strict=True):
+        if np.shape(a) != np.shape(b):
+            return f"{name} is {tuple(np.shape(a))} there and {tuple(np.shape(b))} in this model"
+    return None
 
 
 class NonFiniteError(JaxstyleError, FloatingPointError):
@@ -164,7 +186,18 @@ class Checkpointer:
         try:
             state = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
         except Exception as e:  # orbax/tensorstore raise many types for damaged files
+            shapes = re.search(r"Requested shape: (\([^)]*\)) is not compatible with the stored shape: (\([^)]*\))",
+                               str(e))
+            if shapes:  # a readable checkpoint of another model
+                raise CheckpointMismatchError(
+                    f"checkpoint step {step} in {self.steps_dir} is of a model of other sizes: an array is "
+                    f"{shapes.group(2)} there and {shapes.group(1)} in this model (written by another model, e.g. a "
+                    "base of other sizes)") from None
             raise CheckpointError(_reason(e)) from e
+        other = _mismatch(state, like)
+        if other is not None:
+            raise CheckpointMismatchError(f"checkpoint step {step} in {self.steps_dir} is of a model of other sizes: "
+                                          f"{other} (written by another model, e.g. a base of other sizes)")
         bad = non_finite_leaves(state)
         if bad:
             raise CheckpointError(f"{', '.join(bad[:5])} hold NaN or infinity")
@@ -179,6 +212,8 @@ class Checkpointer:
         if step is not None:
             try:
                 state = self._restore_step(like, step)
+            except CheckpointMismatchError:
+                raise
             except CheckpointError as e:
                 raise CheckpointError(f"checkpoint step {step} in {self.steps_dir} is damaged ({e})") from e
             self.restored_step = step
@@ -190,6 +225,8 @@ class Checkpointer:
         for candidate in reversed(steps):
             try:
                 state = self._restore_step(like, candidate)
+            except CheckpointMismatchError:
+                raise  # another model's checkpoint, not a damaged one
             except CheckpointError as e:
                 damaged.append((candidate, str(e)))
                 continue
@@ -200,7 +237,7 @@ class Checkpointer:
             return state
         listing = "; ".join(f"step {s}: {r}" for s, r in damaged)
         raise CheckpointError(f"no usable checkpoint in {self.steps_dir}: every step is damaged ({listing}); "
-                              "delete that folder to train from the start")
+                              "train into another run folder to start over")
 
     def set_aside_after(self, step: int) -> list[Path]:
         """Move the step folders after ``step`` (damaged ones a resumed run will write again) to
