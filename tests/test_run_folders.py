@@ -136,3 +136,22 @@ def test_an_adapter_of_a_base_of_other_sizes_is_named_as_such_not_as_damage(tmp_
         selection.load_adapter(paths["adapters"] / "Angry", other)
     assert not (paths["adapters"] / "Angry" / "damaged").exists()
     assert selection.load_adapter(paths["adapters"] / "Angry", MODEL) is not None  # its own model still reads it
+
+
+def test_paths_inside_a_run_folder_are_recorded_relative_to_it(tmp_path, monkeypatch):
+    from jaxstyle.data.folders import located_path, portable_path
+
+    run = tmp_path / "runs" / "a"
+    (run / "data" / "Angry").mkdir(parents=True)
+    clip = run / "data" / "Angry" / "Angry_FW.bvh"
+    clip.write_text("x")
+    outside = tmp_path / "elsewhere.bvh"
+    monkeypatch.chdir(tmp_path)
+    assert portable_path("runs/a/data/Angry/Angry_FW.bvh", run / "lpn") == "../data/Angry/Angry_FW.bvh"
+    assert portable_path(outside, run / "lpn") == str(outside)  # outside the run folder: absolute
+    assert located_path("../data/Angry/Angry_FW.bvh", run / "lpn") == str(clip.resolve())
+    moved = tmp_path / "moved"
+    run.rename(moved)
+    monkeypatch.chdir(tmp_path / "runs")  # another directory
+    assert located_path("../data/Angry/Angry_FW.bvh", moved / "lpn") == str((moved / "data/Angry/Angry_FW.bvh"
+                                                                              ).resolve())

@@ -152,3 +152,25 @@ def user_clip_specs(clips: Sequence[str | os.PathLike], mirror: bool,
         copies = (False, True) if mirror else (False,)
         specs += [ClipSpec(str(path), path.stem, start, stop, mirror=m, joint_map=joint_map) for m in copies]
     return specs
+
+
+def portable_path(path: str | os.PathLike, directory: str | os.PathLike) -> str:
+    """How a run folder's JSON in ``directory`` records ``path``: relative to ``directory`` when
+    ``path`` lies inside the run folder (``directory``'s parent), else absolute, so copying or
+    moving the run folder, or using it from another working directory, keeps it valid."""
+    path, directory = Path(path).resolve(), Path(directory).resolve()
+    if directory.parent in path.parents:
+        return os.path.relpath(path, directory)
+    return str(path)
+
+
+def located_path(recorded: str, directory: str | os.PathLike) -> str:
+    """The path that :func:`portable_path` recorded in ``directory`` (a relative path found from
+    ``directory``; a relative path of a run written before paths were recorded this way is read
+    from the working directory, as it was written)."""
+    if Path(recorded).is_absolute():
+        return recorded
+    here = Path(directory) / recorded
+    if here.exists() or not Path(recorded).exists():
+        return str(here.resolve())
+    return str(Path(recorded).resolve())

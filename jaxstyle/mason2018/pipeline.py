@@ -46,6 +46,8 @@ from jaxstyle.data.folders import (  # noqa: F401  (re-exported: the pipeline's 
     available_styles,
     clip_specs,
     folder_specs,
+    located_path,
+    portable_path,
     split_styles,
     style_root,
     user_clip_specs,
@@ -165,28 +167,6 @@ class BaseSettings:
     def resolved(self) -> "BaseSettings":
         """The same settings with ``data`` an absolute path."""
         return dataclasses.replace(self, data=str(Path(self.data).resolve()))
-
-
-def portable_path(path: str | os.PathLike, directory: str | os.PathLike) -> str:
-    """How a run folder's JSON in ``directory`` records ``path``: relative to ``directory`` when
-    ``path`` lies inside the run folder (``directory``'s parent), else absolute, so copying or
-    moving the run folder, or using it from another working directory, keeps it valid."""
-    path, directory = Path(path).resolve(), Path(directory).resolve()
-    if directory.parent in path.parents:
-        return os.path.relpath(path, directory)
-    return str(path)
-
-
-def located_path(recorded: str, directory: str | os.PathLike) -> str:
-    """The path that :func:`portable_path` recorded in ``directory`` (a relative path found from
-    ``directory``; a relative path of a run written before paths were recorded this way is read
-    from the working directory, as it was written)."""
-    if Path(recorded).is_absolute():
-        return recorded
-    here = Path(directory) / recorded
-    if here.exists() or not Path(recorded).exists():
-        return str(here.resolve())
-    return str(Path(recorded).resolve())
 
 
 def paper_base_settings(mocap: str | os.PathLike, epochs: int = 20) -> BaseSettings:

@@ -40,7 +40,7 @@ import jax
 import numpy as np
 
 from jaxstyle.data import datasets
-from jaxstyle.data.folders import PipelineError, clip_specs, user_clip_specs
+from jaxstyle.data.folders import PipelineError, clip_specs, portable_path, user_clip_specs
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
@@ -138,8 +138,11 @@ def write_data_file(data: LPNData, directory: str | os.PathLike, name: str = MOD
     skeleton) from."""
     path = Path(directory) / "data.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json_text({"name": name, "base": [dataclasses.asdict(s) for s in data.base.specs],
-                               "new": [] if data.new is None else [dataclasses.asdict(s) for s in data.new.specs]}))
+    def portable(specs):  # paths inside the run folder relative to this one (a run can be copied or moved)
+        return [{**dataclasses.asdict(s), "path": portable_path(s.path, path.parent)} for s in specs]
+
+    path.write_text(json_text({"name": name, "base": portable(data.base.specs),
+                               "new": [] if data.new is None else portable(data.new.specs)}))
     return path
 
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
-from jaxstyle.data.folders import PipelineError
+from jaxstyle.data.folders import PipelineError, located_path
 from jaxstyle.mason2022 import pipeline
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
@@ -97,7 +97,8 @@ def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None 
     def build(specs):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # short clips are skipped with a warning, as in training
-            return datasets.build_lpn_dataset([ClipSpec(**s) for s in specs], cache_dir=cache, skip_short=True,
+            return datasets.build_lpn_dataset([ClipSpec(**{**s, "path": located_path(s["path"], directory)})
+                                               for s in specs], cache_dir=cache, skip_short=True,
                                               progress=progress)
 
     base = build(meta["base"])
