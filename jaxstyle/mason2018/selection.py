@@ -400,9 +400,10 @@ def load_adapter(directory: str | os.PathLike, config: pfnn.PFNNConfig) -> dict:
     path = Path(directory)
     saved = json.loads((path / "config.json").read_text())
     ckpt = Checkpointer(path, saved)
-    adapter = ckpt.restore(pfnn.init_adapter(jax.random.PRNGKey(0), config))
-    ckpt.close()
-    return adapter
+    try:
+        return ckpt.restore(pfnn.init_adapter(jax.random.PRNGKey(0), config))
+    finally:
+        ckpt.close()  # also when the restore is refused
 
 
 def _fmt(v) -> str:
