@@ -316,9 +316,11 @@ def write_report(result: SweepResult, directory: str | os.PathLike, config: fews
     An earlier report there is merged, not replaced: its sets that this result does not hold keep
     their rows of ``results.csv``, their entries of ``chosen_rates.json`` and their adapters; a set
     swept again is updated. ``replace``: start over (the earlier sets' entries and adapters are
-    removed). The heatmap shows this result's sets. Each file is written whole, then renamed;
-    ``chosen_rates.json``, the index that synthesis and play read, is written last, so a run
-    killed midway never names an adapter that is not there."""
+    removed). The heatmap shows this result's sets. The adapters are written first; then
+    ``results.csv`` and ``chosen_rates.json`` (the index that synthesis and play read) are each
+    written in full and renamed into place back to back, the index last: a run killed midway never
+    names an adapter that is not there, and the two tables disagree only if it is killed between
+    two renames (two system calls, not one atomic step)."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = {"csv": directory / "results.csv", "heatmap": directory / "heatmap.png",
@@ -353,12 +355,14 @@ def write_report(result: SweepResult, directory: str | os.PathLike, config: fews
                             f"{result.train_loss[s, r]:.6f}", f"{result.validation_loss[s, r]:.6f}"]
                            + [_fmt(result.rollout[k][s, r]) for k in ROLLOUT_FIELDS]
                            + [int(result.chosen[s] == r)])
-    os.replace(tmp, paths["csv"])
+    csv_tmp = tmp
     plot_heatmap(result, paths["heatmap"])
     chosen = {style: {"rate": result.rates[int(result.chosen[s])], "validation_loss": float(result.validation_loss[
         s, result.chosen[s]]), "passed_check": bool(result.chosen_passed[s])} for s, style in enumerate(result.styles)}
     tmp = paths["chosen"].with_name("chosen_rates.json.tmp")
     tmp.write_text(json_text({**earlier, **chosen}))  # strict JSON: a NaN loss is null
+    # both written in full first, then renamed back to back, the index last
+    os.replace(csv_tmp, paths["csv"])
     os.replace(tmp, paths["chosen"])
     if replace and paths["adapters"].is_dir():
         for folder in paths["adapters"].iterdir():
