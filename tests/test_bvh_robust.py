@@ -373,3 +373,19 @@ def test_resampling_is_bounded():
     assert transform.resample(motion, 16.0).num_frames == 73
     with pytest.raises(js.MotionDataError, match=r"slow\.bvh: the clip runs at 2 frames/s; resampling it to 60 .*8x"):
         transform.resample(motion, 60.0)
+
+
+def test_joint_names_are_read_from_the_hierarchy_alone(small_lines, tmp_path):
+    from jaxstyle.motion.bvh import read_joint_names
+
+    path = tmp_path / "clip.bvh"
+    path.write_text("\n".join(small_lines) + "\n")
+    names = js.read_bvh(path).names
+    assert read_joint_names(path) == names and len(names) > 20
+    # the motion block is not read: a damaged one does not matter; a missing MOTION line does
+    m = _motion_start(small_lines)
+    path.write_text("\n".join(small_lines[:m + 1]) + "\nFrames: x\n")
+    assert read_joint_names(path) == names
+    path.write_text("\n".join(small_lines[:m]) + "\n")
+    with pytest.raises(js.MotionDataError, match=r"clip\.bvh, line \d+: missing MOTION section"):
+        read_joint_names(path)

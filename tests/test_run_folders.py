@@ -155,3 +155,39 @@ def test_paths_inside_a_run_folder_are_recorded_relative_to_it(tmp_path, monkeyp
     monkeypatch.chdir(tmp_path / "runs")  # another directory
     assert located_path("../data/Angry/Angry_FW.bvh", moved / "lpn") == str((moved / "data/Angry/Angry_FW.bvh"
                                                                               ).resolve())
+
+
+def test_a_clip_with_the_bases_joints_in_another_order_is_refused(tmp_path):
+    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.motion.bvh import read_bvh, write_bvh
+    from tests.test_play import tiny_model
+
+    base = tiny_model(tmp_path).base
+    motion = read_bvh(base.dataset.specs[0].path)
+    # the same hierarchy written with the children of the first joint that has several in reverse
+    # order (e.g. the right leg before the left): a valid BVH of the base's joints in another order
+    children = {j: [c for c in range(motion.num_joints) if motion.parents[c] == j] for j in range(motion.num_joints)}
+    fork = next(j for j in range(motion.num_joints) if len(children[j]) > 1)
+    order, stack = [], [0]
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        kids = children[j][::-1] if j == fork else children[j]
+        stack.extend(kids[::-1])
+    k = next(i for i, j in enumerate(order) if i != j)
+    a, b = k, order[k]
+    where = {old: new for new, old in enumerate(order)}
+    swapped = motion.replace(names=tuple(motion.names[j] for j in order),
+                             parents=np.array([-1 if motion.parents[j] < 0 else where[motion.parents[j]]
+                                               for j in order]),
+                             offsets=motion.offsets[order], rotations=motion.rotations[:, order],
+                             local_positions=motion.local_positions[:, order],
+                             channels=tuple(motion.channels[j] for j in order),
+                             end_site_parents=np.array([where[p] for p in motion.end_site_parents], dtype=np.int64))
+    clip = tmp_path / "Swapped.bvh"
+    write_bvh(swapped, clip)
+    specs = pipeline.user_clip_specs([clip], False, None)
+    with pytest.raises(PipelineError, match=rf"Swapped\.bvh: its joints are the base's in another order \(joint {a} "
+                                            rf"is '{motion.names[b]}', the base's is '{motion.names[a]}'\)"):
+        pipeline.run_sweep(base, specs, tmp_path / "sweep", epochs=1, rates=(0.3,), progress=False)
+    assert not (tmp_path / "sweep").exists()

@@ -64,7 +64,7 @@ from jaxstyle.mason2018.train import (
     with_contacts,
 )
 from jaxstyle.motion import Motion
-from jaxstyle.motion.bvh import frame_rate
+from jaxstyle.motion.bvh import frame_rate, read_joint_names
 from jaxstyle.motion.skeleton import JointMap
 from jaxstyle.nn import pfnn
 from jaxstyle.output import synthesis
@@ -289,6 +289,7 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
         raise PipelineError("no few-shot clips")
     if epochs < 1 or not rates or any(not 0 <= r < 1 for r in rates):
         raise PipelineError(f"need epochs >= 1 and dropout rates in [0, 1), got {epochs} and {list(rates)}")
+    _check_joint_order(specs, base)
     shots = build(specs, cache)
     if base.settings.contacts:
         shots = with_contacts(shots, base.dataset)
@@ -316,6 +317,20 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
     os.replace(path.with_name("sweep.json.tmp"), path)
     paths["sweep"] = path
     return result, paths, shots
+
+
+def _check_joint_order(specs: Sequence[ClipSpec], base: Base) -> None:
+    """Refuse a clip whose joints are the base's but listed in another order (left and right
+    swapped, say): its features would put each joint's values where the base expects another
+    joint's, and the sweep would train on them without a word. Clips with a joint map are read
+    through it and not checked here."""
+    want = tuple(base.skeleton.names)
+    for path in dict.fromkeys(s.path for s in specs if s.joint_map is None):
+        names = read_joint_names(path)
+        if names != want and sorted(names) == sorted(want):
+            k = next(i for i, (a, b) in enumerate(zip(names, want, strict=True)) if a != b)
+            raise PipelineError(f"{path}: its joints are the base's in another order (joint {k} is {names[k]!r}, "
+                                f"the base's is {want[k]!r}); write it in the base's joint order")
 
 
 def sweep_table(result: selection.SweepResult) -> list[str]:

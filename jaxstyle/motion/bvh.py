@@ -79,6 +79,23 @@ def frame_rate(path: str | os.PathLike) -> float:
     raise MotionDataError("no 'Frame Time:' line", path)
 
 
+def read_joint_names(path: str | os.PathLike) -> tuple[str, ...]:
+    """The joint names of a BVH file's hierarchy, read without its motion block (a header of at
+    most :func:`max_bvh_bytes` is read)."""
+    path = Path(path)
+    limit, got, lines = max_bvh_bytes(), 0, []
+    with _open_regular(path) as f:
+        for raw in f:
+            got += len(raw)
+            if got > limit:
+                raise MotionDataError(_too_big(got, limit), path)
+            line = raw.decode("utf-8", errors="replace").rstrip("\r\n").lstrip("\ufeff")
+            if line.strip() == "MOTION":
+                return _parse_hierarchy(lines, str(path))["names"]
+            lines.append(line)
+    raise MotionDataError("missing MOTION section after the hierarchy", path, len(lines))
+
+
 def read_bvh(path: str | os.PathLike, *, max_bytes: int | None = None) -> Motion:
     """Reads a BVH file into a :class:`~jaxstyle.motion.Motion`.
 
