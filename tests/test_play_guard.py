@@ -192,10 +192,10 @@ def test_uploads_are_capped_written_fresh_and_removed_when_refused(live, tmp_pat
     def files():
         return sorted(p for p in uploads.rglob("*") if p.is_file()) if uploads.exists() else []
 
-    live._unlocked(live._on_upload)(SimpleNamespace(name="big.bvh", content=b"x" * 100_001))
+    live._guarded(live._on_upload, reads_files=True)(SimpleNamespace(name="big.bvh", content=b"x" * 100_001))
     assert "big.bvh: the upload is 0.1 MB, more than the 0.1 MB allowed" in live.message and files() == []
     robot = other_skeleton_bvh(tmp_path / "Robot.bvh").read_bytes()
-    live._unlocked(live._on_upload)(SimpleNamespace(name="../../Robot.bvh", content=robot))
+    live._guarded(live._on_upload, reads_files=True)(SimpleNamespace(name="../../Robot.bvh", content=robot))
     wait_for(lambda: "another skeleton" in live.message, 30, "the refusal")
     wait_for(lambda: files() == [], 5, "the refused upload to be removed")
     assert not (live.run_dir.parent / "Robot.bvh").exists() and live.learner.state == "idle"

@@ -6,7 +6,6 @@ import argparse
 import contextlib
 import datetime
 import importlib
-import json
 import math
 import os
 import platform
@@ -151,12 +150,12 @@ class Run:
         config_path = self.dir / "config.json"
         config = {}
         if config_path.is_file():
+            from jaxstyle.train.checkpoint import read_json  # loads JAX, so here
+
             try:
-                config = json.loads(config_path.read_text(encoding="utf-8"))
-            except (json.JSONDecodeError, UnicodeDecodeError) as e:
-                where = f", line {e.lineno}" if isinstance(e, json.JSONDecodeError) else ""
-                raise CLIError(f"{config_path}{where}: not valid JSON ({getattr(e, 'msg', e)}); it holds the "
-                               "settings of the commands run here: fix it by hand") from None
+                config = read_json(config_path)
+            except ValueError as e:
+                raise CLIError(f"{e}; it holds the settings of the commands run here: fix it by hand") from None
             if not isinstance(config, dict):
                 raise CLIError(f"{config_path}: expected a JSON object of the commands' settings, got "
                                f"{type(config).__name__}; fix it by hand")
@@ -409,7 +408,7 @@ def finite(text: str) -> float:
 def check_rates(rates, flag: str = "--rates") -> None:
     """Dropout rates must lie in [0, 1)."""
     if any(not 0 <= r < 1 for r in rates):
-        raise CLIError(f"{flag} must be dropout rates in [0, 1), got {' '.join(f'{r:g}' for r in rates)}")
+        raise CLIError(f"{flag} must be in [0, 1), got {' '.join(f'{r:g}' for r in rates)}")
 
 
 MAX_SYNTH_SECONDS = 3600.0  # one path's length at most (216,000 frames at 60 fps)

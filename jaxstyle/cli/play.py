@@ -6,7 +6,7 @@ import re
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import DEMO_RUN, SWEEP_RATES, CLIError, Run, add_common, check_positive, finite
+from jaxstyle.cli.common import DEMO_RUN, SWEEP_RATES, CLIError, Run, add_common, check_positive, check_rates, finite
 
 PLAY_MODELS = ("pfnn", "lpn-film", "lpn-onehot", "lpn-resad", "mann-film", "pfnn-film", "pfnn-onehot", "pfnn-resad")
 """``--model``: the 2018 PFNN and the 2022 models of Table 2 (``jaxstyle.mason2022.synthesis.MODELS``)."""
@@ -88,8 +88,7 @@ def run(args, run: Run) -> None:
             raise CLIError(f"--clip-dir {folder}: no such folder")
     if not 0 < args.port < 65536:
         raise CLIError(f"--port must be in 1 .. 65535, got {args.port}")
-    if any(not 0 <= r < 1 for r in args.rates):
-        raise CLIError(f"--rates must be in [0, 1), got {' '.join(map(str, args.rates))}")
+    check_rates(args.rates)
     have = available_models(args.run)
     wanted = args.model or "pfnn"
     if not have and Path(args.run) == DEMO_RUN:

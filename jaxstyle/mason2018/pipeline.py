@@ -69,7 +69,7 @@ from jaxstyle.motion.skeleton import JointMap
 from jaxstyle.nn import pfnn
 from jaxstyle.output import synthesis
 from jaxstyle.output.synthesis import Character, SynthesisResult
-from jaxstyle.train.checkpoint import json_text
+from jaxstyle.train.checkpoint import json_text, read_json
 from jaxstyle.train.scan import DEFAULT_RATES
 
 # --- data ---------------------------------------------------------------------------------------
@@ -394,10 +394,9 @@ def _portable_spec(spec: ClipSpec, directory) -> dict:
 
 def _read_sweep_json(path: Path) -> dict:
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        line = f", line {e.lineno}" if isinstance(e, json.JSONDecodeError) else ""
-        raise PipelineError(f"{path}{line}: not valid JSON ({getattr(e, 'msg', e)})") from None
+        meta = read_json(path)
+    except ValueError as e:
+        raise PipelineError(str(e)) from None
     if not isinstance(meta, dict) or not isinstance(meta.get("specs", []), list):
         raise PipelineError(f"{path}: expected an object with a list of 'specs'")
     return meta

@@ -59,7 +59,7 @@ from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
 from jaxstyle.train import defaults, scan
-from jaxstyle.train.checkpoint import Checkpointer, json_text
+from jaxstyle.train.checkpoint import Checkpointer, json_text, read_json
 
 # --- 1. hold-out -----------------------------------------------------------------------------------
 
@@ -377,10 +377,9 @@ def read_chosen(path: str | os.PathLike) -> dict[str, dict]:
     (hand-edited, damaged) raises a PipelineError naming the file and the key."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        line = f", line {e.lineno}" if isinstance(e, json.JSONDecodeError) else ""
-        raise PipelineError(f"{path}{line}: not valid JSON ({getattr(e, 'msg', e)})") from None
+        data = read_json(path)
+    except ValueError as e:
+        raise PipelineError(str(e)) from None
     if not isinstance(data, dict):
         raise PipelineError(f"{path}: expected an object of set name -> chosen rate, got {type(data).__name__}")
     for name, info in data.items():

@@ -35,6 +35,7 @@ keeps running.
 from __future__ import annotations
 
 import collections
+import contextlib
 import datetime
 import math
 import threading
@@ -196,7 +197,6 @@ class PlayServer:
         except PlayError:
             self._server.stop()
             raise
-        self._check_listening()
         self.log(f"jaxstyle play: open {self.url} in a browser (Ctrl-C stops)")
         if self.admission.every_interface and self.token is None:
             self.log("warning: serving on every interface without --token: any machine that reaches this port can "
@@ -225,23 +225,6 @@ class PlayServer:
     def url(self) -> str:
         """The page's address (with the token when there is one)."""
         return guard.Admission(self.host, self.port, self.token).page_url()
-
-    def _check_listening(self, timeout: float = 5.0) -> None:
-        """A PlayError unless the server accepts connections on its port within ``timeout``
-        (viser's server thread dies quietly on an address it cannot bind or look up)."""
-        import socket
-
-        host = "127.0.0.1" if self.host in guard.EVERY_INTERFACE else self.host.strip("[]")
-        t0 = time.monotonic()
-        while True:
-            try:
-                with socket.create_connection((host, self.port), timeout=1.0):
-                    return
-            except OSError as e:
-                if time.monotonic() - t0 > timeout:
-                    self._server.stop()
-                    raise PlayError(f"cannot serve on {self.host}:{self.port} ({e.strerror or e})") from None
-                time.sleep(0.05)
 
     def load_run(self, run_dir: str | Path, model: AnyPlayModel | None = None, key: str | None = None) -> bool:
         """Load the run folder's model ``key`` (``pfnn``: the 2018 base, its few-shot and learned
@@ -326,35 +309,22 @@ class PlayServer:
         if self._server is not None:
             self._gui["status"].content = text
 
-    def _guarded(self, fn: Callable) -> Callable:
-        """A GUI callback that shows bad input in the page instead of failing."""
+    def _guarded(self, fn: Callable, reads_files: bool = False) -> Callable:
+        """A GUI callback that shows bad input in the page instead of failing. ``reads_files``:
+        it runs without the session lock (the render loop goes on while a file is read) and its
+        errors are shown without quoting any file (:func:`jaxstyle.play.guard.without_content`)."""
+        shown = guard.without_content if reads_files else (lambda text: text)
 
         def run(*args):
             try:
-                with self.lock:
+                with self.lock if not reads_files else contextlib.nullcontext():
                     if self.session is None and fn.__name__ not in ("_on_load_run",):
                         raise PlayError("no model loaded: give a run folder with a trained base")
                     fn(*args)
             except (JaxstyleError, ValueError, KeyError, OSError) as e:
-                self.show_error(_one_line(e))
+                self.show_error(shown(_one_line(e)))
             except Exception as e:  # noqa: BLE001 - a bug in a callback must not end the page
-                self.show_error(f"internal error: {type(e).__name__}: {_one_line(e)}")
-
-        return run
-
-    def _unlocked(self, fn: Callable) -> Callable:
-        """A GUI callback that reads files: run without the session lock (the render loop goes
-        on), bad input shown in the page without quoting any file."""
-
-        def run(*args):
-            try:
-                if self.session is None:
-                    raise PlayError("no model loaded: give a run folder with a trained base")
-                fn(*args)
-            except (JaxstyleError, ValueError, KeyError, OSError) as e:
-                self.show_error(guard.without_content(_one_line(e)))
-            except Exception as e:  # noqa: BLE001 - a bug in a callback must not end the page
-                self.show_error(f"internal error: {type(e).__name__}: {guard.without_content(_one_line(e))}")
+                self.show_error(f"internal error: {type(e).__name__}: {shown(_one_line(e))}")
 
         return run
 
@@ -571,8 +541,8 @@ class PlayServer:
         g["blend_on"].on_click(lambda _: self._guarded(self._on_blend)())
         for handle in g["weights"] + g["blend"]:
             handle.on_update(lambda _: self._guarded(self._on_blend_change)())
-        g["upload"].on_upload(lambda e: self._unlocked(self._on_upload)(e.target.value))
-        g["learn"].on_click(lambda _: self._unlocked(lambda: self.learn(g["path"].value))())
+        g["upload"].on_upload(lambda e: self._guarded(self._on_upload, reads_files=True)(e.target.value))
+        g["learn"].on_click(lambda _: self._guarded(lambda: self.learn(g["path"].value), reads_files=True)())
         g["record"].on_click(lambda _: self._guarded(lambda: self.record(g["seconds"].value))())
         g["load"].on_click(lambda _: self._guarded_load())
         for key in ("W", "A", "S", "D", "arrowup", "arrowleft", "arrowdown", "arrowright"):
@@ -724,7 +694,7 @@ class PlayServer:
         model, learner = self.session.model, self.learner
         self._gui["learn_note"].content = f"{path.name}: reading ..."
 
-        def work() -> None:
+        def work() -> None:  # errors are shown by _guarded
             try:
                 learn.check_clip(path, model, self._reader.names)  # in another process, off the lock
                 with self.lock:
@@ -732,17 +702,15 @@ class PlayServer:
                     self._pending_upload = path if upload else None
                 self._gui["progress"].value = 0.0
                 self._gui["learn_note"].content = f"{name}: starting ..."
-            except (JaxstyleError, ValueError, KeyError, OSError) as e:
+            except BaseException:
                 self._discard_upload(path if upload else None)
                 self._gui["learn_note"].content = ""
-                self.show_error(guard.without_content(_one_line(e)))
-            except Exception as e:  # noqa: BLE001 - a bug here must not end the page
-                self._discard_upload(path if upload else None)
-                self.show_error(f"internal error: {type(e).__name__}: {guard.without_content(_one_line(e))}")
+                raise
             finally:
                 self._reading.release()
 
-        thread = threading.Thread(target=work, name="jaxstyle-play-read", daemon=True)
+        thread = threading.Thread(target=self._guarded(work, reads_files=True), name="jaxstyle-play-read",
+                                  daemon=True)
         thread.start()
         return thread
 
@@ -766,7 +734,6 @@ class PlayServer:
             else:
                 model.styles[style.name] = style
                 note = f" (for the {model.title}: choose it under Model to play it)"
-        with self.lock:
             self._pending_upload = None  # kept: the learned style's source
         message = self._learners[id(model)][1].status()[2] + note
         self._gui["progress"].value = 100.0

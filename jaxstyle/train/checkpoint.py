@@ -91,6 +91,17 @@ def finite_or_none(value: Any) -> Any:
     return value
 
 
+def read_json(path: str | os.PathLike) -> Any:
+    """The JSON value in the file at ``path``; a file that is not JSON (or not UTF-8) raises a
+    ValueError whose message names the file and, where there is one, the line:
+    ``PATH, line N: not valid JSON (reason)``."""
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        line = f", line {e.lineno}" if isinstance(e, json.JSONDecodeError) else ""
+        raise ValueError(f"{path}{line}: not valid JSON ({getattr(e, 'msg', e)})") from None
+
+
 def json_text(value: Any, **kwargs) -> str:
     """Strict JSON of ``value`` (``allow_nan=False``): a NaN or infinity, where a value may
     legitimately be missing (a loss of a style without validation rows), is written ``null``;
