@@ -5,6 +5,18 @@ targets, camera), for 1, 8, 32 and 64 characters, with and without foot locking.
 
     python benchmarks/play.py [--run RUN] [--model pfnn|lpn-film] [--frames 600] [--characters 1 8 32 64]
     python benchmarks/play.py --run runs/demo --screenshot docs/figures/play.png
+    python benchmarks/play.py --run runs/demo --learn
+
+``--learn``: learning a style live, from upload to playing. A copy of the run's base and data
+(the run folder is not written) is served with the render loop running and one character walking,
+no page connected; a 10 s clip (the first 10 s of the base data's ``Proud/Proud_FR.bvh``, else
+of its first clip) is given to the page's upload handler, and the time until the new style is in
+the style list is measured, then again for an 8 s clip (another length) in the same session.
+This runs twice, each in a fresh process: with an empty compilation cache
+(``jaxstyle.cli.common.use_xla_cache``, as after installing) and with the cache the first filled
+(every later ``jaxstyle play``). Then, without the render loop, the validation loss of the
+chosen rate at the live epochs (``--learn-epochs``, default ``jaxstyle play``'s) and at 40 (the demo's
+sweep).
 
 ``--screenshot``: the page in headless Chromium (/usr/bin/chromium through playwright, as the
 browser tests), two characters walking to waypoints in two styles (the README's figure).
@@ -43,6 +55,7 @@ from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn, style_models
 from jaxstyle.output import synthesis
 from jaxstyle.play import session
+from jaxstyle.train.defaults import LEARN_EPOCHS
 
 
 def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> session.PlayModel:
@@ -150,6 +163,92 @@ def screenshot(run: Path, path: Path) -> None:
     print(f"wrote {path}")
 
 
+def _clip(run: Path, seconds: float, folder: Path, name: str, prefer: str) -> Path:
+    """The first ``seconds`` of the base data's ``prefer`` clip (else its first), written to ``folder``."""
+    from jaxstyle.motion import bvh
+
+    data = run / "data"
+    source = data / prefer if (data / prefer).is_file() else sorted(data.rglob("*.bvh"))[0]
+    motion = bvh.read_bvh(source)
+    path = folder / f"{name}.bvh"
+    bvh.write_bvh(motion.frames(0, int(round(seconds * motion.fps))), path)
+    return path
+
+
+def learn_once(run: Path, epochs: int) -> None:
+    """One process's upload-to-playing times (two clips, one session); prints one line per clip."""
+    import shutil
+    import types
+
+    from jaxstyle.cli.common import use_xla_cache
+    from jaxstyle.play.server import PlayServer
+
+    use_xla_cache()
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / "run"
+        for part in ("base", "data"):
+            shutil.copytree(run / part, copy / part)
+        clips = [_clip(copy, 10.0, Path(tmp), "Proud10", "Proud/Proud_FR.bvh"),
+                 _clip(copy, 8.0, Path(tmp), "Limping8", "Limping/Limping_FW.bvh")]
+        server = PlayServer(copy, port=free_port(), learn_epochs=epochs).start()
+        try:
+            server.session.walk_to(0.0, 50.0)
+            time.sleep(3.0)  # walking, the reader process started
+            for clip in clips:
+                upload = types.SimpleNamespace(name=clip.name, content=clip.read_bytes())
+                t0 = time.monotonic()
+                server._on_upload(upload)
+                while clip.stem not in server.session.styles:
+                    state = server.learner.status()[0] if server.learner else "none"
+                    if state == "failed" or time.monotonic() - t0 > 600:
+                        raise SystemExit(f"learning {clip.name} failed: {server.message}")
+                    time.sleep(0.02)
+                seconds = time.monotonic() - t0
+                frames = [t for t in server.frame_times if t >= t0]
+                gaps = np.diff(frames) if len(frames) > 1 else np.array([np.nan])
+                print(f"LEARN {clip.stem} {seconds:.2f} {len(frames) / seconds:.1f} {1e3 * np.max(gaps):.0f} "
+                      f"{server.learner.status()[2]}", flush=True)
+        finally:
+            server.stop()
+
+
+def learn_benchmark(run: Path, epochs: int) -> None:
+    """Upload-to-playing with an empty and a filled compilation cache (each in a fresh process),
+    and the validation loss of the live epochs' chosen rate beside 40 epochs' (the demo's sweep)."""
+    import dataclasses
+    import subprocess
+    import sys
+
+    print(f"jaxstyle play, learning a style live; {platform.machine()}, {os.cpu_count()} cores, jax {jax.__version__} "
+          f"on {jax.devices()[0].platform}; {run}, {epochs} epochs, rates 0.3 0.5 0.7; render loop running, "
+          "one character walking")
+    print("| compilation cache | clip | upload to playing (s) | frames/s meanwhile | longest frame gap (ms) | "
+          "target <= 30 s |")
+    print("|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "JAXSTYLE_XLA_CACHE": cache, "PYTHONUNBUFFERED": "1"}
+        for label in ("empty", "filled by the run above"):
+            out = subprocess.run([sys.executable, __file__, "--run", str(run), "--learn-once", "--learn-epochs",
+                                  str(epochs)], env=env, capture_output=True, text=True, check=False)
+            lines = [line.split(" ", 5) for line in out.stdout.splitlines() if line.startswith("LEARN ")]
+            if out.returncode or len(lines) != 2:
+                raise SystemExit(f"the learning run failed:\n{out.stdout[-2000:]}\n{out.stderr[-2000:]}")
+            for k, (_, clip, seconds, fps, gap, _) in enumerate(lines):
+                where = "first clip of the session" if k == 0 else "second clip, same session"
+                print(f"| {label} | {clip} ({where}) | {float(seconds):.1f} | {fps} | {gap} | "
+                      f"{'met' if float(seconds) <= 30 else 'NOT met'} |", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        clip = _clip(run, 10.0, Path(tmp), "Proud10", "Proud/Proud_FR.bvh")
+        base = pipeline.load_base(run / "base", progress=False)
+        specs = [dataclasses.replace(s, style="Proud10") for s in pipeline.user_clip_specs([clip], True, None)]
+        cells = []
+        for e in (epochs, 40):
+            result, _, _ = pipeline.run_sweep(base, specs, Path(tmp) / f"e{e}", epochs=e, progress=False, write=False)
+            cells.append(f"{e} epochs: {result.validation_loss[0, int(result.chosen[0])]:.4f} at rate "
+                         f"{result.chosen_rate('Proud10'):g} ({result.seconds['sweep']:.1f} s fine-tuning)")
+        print(f"\nvalidation loss of the chosen rate, Proud10 (no render loop): {cells[0]}; {cells[1]}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--run", type=Path, help="time this run folder's model (default: a random demo-size PFNN)")
@@ -159,7 +258,15 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=600)
     parser.add_argument("--characters", type=int, nargs="+", default=[1, 8, 32, 64])
     parser.add_argument("--screenshot", type=Path, help="write a screenshot of the page on --run instead")
+    parser.add_argument("--learn", action="store_true", help="time learning a style live on --run instead "
+                        "(default runs/demo)")
+    parser.add_argument("--learn-epochs", type=int, default=LEARN_EPOCHS,
+                        help="with --learn: epochs (default jaxstyle play's)")
+    parser.add_argument("--learn-once", action="store_true", help=argparse.SUPPRESS)  # one process of --learn
     args = parser.parse_args()
+    if args.learn or args.learn_once:
+        (learn_once if args.learn_once else learn_benchmark)(args.run or Path("runs/demo"), args.learn_epochs)
+        return
     if args.screenshot:
         screenshot(args.run or Path("runs/demo"), args.screenshot)
         return

@@ -25,6 +25,10 @@ if os.environ.get("JAXSTYLE_TEST_XLA_DEFAULT") != "1" and "xla_backend_optimizat
         "XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FAST_COMPILE).strip()
 
+# The command line's persistent compilation cache (jaxstyle.cli.common.use_xla_cache) stays off in
+# the tests, so every test compiles what it runs; tests of the cache set the variable themselves.
+os.environ.setdefault("JAXSTYLE_XLA_CACHE", "off")
+
 
 def _mocap_or_skip() -> Path:
     path = default_mocap_dir()

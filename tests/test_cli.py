@@ -319,3 +319,34 @@ def test_a_run_folder_copied_elsewhere_works_from_another_directory(tmp_path, mo
     assert run_cli("synthesize", "--run", "moved", "--paths", "straight", "--synth-seconds", 1, "--sets",
                    "Limping_FW", "Crouched_FW", "--quiet") == 0
     assert (tmp_path / "moved/synthesis/straight.gif").is_file()
+
+
+def test_compilation_cache_is_written_to_its_folder_and_can_be_turned_off(tmp_path):
+    """``use_xla_cache`` (every ``jaxstyle`` command) stores compiled programs in
+    ``$JAXSTYLE_XLA_CACHE``; ``off`` disables it. In fresh processes: JAX's cache is process-wide."""
+    script = ("import jax, jax.numpy as jnp\n"
+              "from jaxstyle.cli.common import use_xla_cache\n"
+              "print(use_xla_cache())\n"
+              "print(float(jax.jit(lambda x: jnp.sin(x) * 3)(jnp.float32(1))))\n")
+    cache = tmp_path / "xla"
+    for value, want in ((str(cache), str(cache)), ("off", "None")):
+        env = {**os.environ, "JAXSTYLE_XLA_CACHE": value}
+        out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.split()[0] == want
+    entries = [p for p in cache.rglob("*") if p.is_file()]
+    assert entries, "no compiled program was cached"
+    assert not (tmp_path / "off").exists()
+
+
+def test_compilation_cache_folder_defaults_to_the_user_cache(monkeypatch, tmp_path):
+    from jaxstyle.cli.common import xla_cache_dir
+
+    monkeypatch.delenv("JAXSTYLE_XLA_CACHE", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert xla_cache_dir() == tmp_path / "jaxstyle" / "xla"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert xla_cache_dir() == Path.home() / ".cache" / "jaxstyle" / "xla"
+    for off in ("off", "0", "", "No"):
+        monkeypatch.setenv("JAXSTYLE_XLA_CACHE", off)
+        assert xla_cache_dir() is None

@@ -182,3 +182,27 @@ def test_sweep_with_full_and_diagonal_adapters_equals_single_runs(kind):
     assert np.isfinite(np.asarray(losses[:, :, 0])).all()
     for s, r in ((0, 1), (1, 0)):
         _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, s, r)
+
+
+def test_rows_beyond_the_batches_change_nothing_and_lengths_share_a_program():
+    """The data is padded to a row bucket: rows the batches do not index (the padding, or another
+    clip's rows) change no result, and data of another length in the same bucket reuses the
+    compiled program."""
+    x, y, phase, rows = _data()  # 119 rows: padded to 128
+    config = fewshot.SweepConfig(model=SMALL, epochs=2, batch_size=16, learning_rate=3e-3, rates=(0.3,))
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
+    batches, mask = scan.sweep_batches(rows[:2], config.epochs, config.batch_size)  # rows < 107
+    key = scan.pair_key(config.seed, 0, 0)
+    assert fewshot.frozen_inputs(params, x, y, phase)["x"].shape == (128, 6)
+    want, want_losses = fewshot.finetune_one(params, x, y, phase, batches[0], mask[0], 0.3, key, config)
+    compiled = scan.run_pair._cache_size()
+    got, losses = fewshot.finetune_one(params, x[:107], y[:107], phase[:107], batches[0], mask[0], 0.3, key, config)
+    assert scan.run_pair._cache_size() == compiled  # 107 rows: the same 128-row program
+    np.testing.assert_allclose(losses, want_losses, rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+    noise = np.random.default_rng(1).normal(size=(40, 6)).astype(np.float32)  # 147 rows: 256
+    bigger, _ = fewshot.finetune_one(params, jnp.concatenate([x, noise]), jnp.concatenate([y, noise[:, :5]]),
+                                     jnp.concatenate([phase, noise[:, 0]]), batches[0], mask[0], 0.3, key, config)
+    for a, b in zip(jax.tree.leaves(bigger), jax.tree.leaves(want), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)

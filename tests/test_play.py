@@ -299,6 +299,23 @@ def test_check_clip_refuses_other_skeletons_and_non_bvh(model, tmp_path):
     learn.check_clip(Path(model.base.settings.data) / "Neutral" / "Neutral_FW.bvh", model)  # the base's own
 
 
+def test_clip_reader_process_reads_names_after_warming_up(model, tmp_path):
+    """The reader process (spawned and warmed at start) gives the same names as reading here, and a
+    malformed file's one-line error comes back from it."""
+    clip = Path(model.base.settings.data) / "Neutral" / "Neutral_FW.bvh"
+    text = tmp_path / "notes.bvh"
+    text.write_text("these are not motion capture\n")
+    reader = learn.ClipReader(timeout=60)
+    try:
+        reader.warm()
+        assert reader._pool is not None
+        assert reader.names(clip) == read_bvh(clip).names == model.base.skeleton.names
+        with pytest.raises(JaxstyleError, match="notes.bvh"):
+            learn.check_clip(text, model, reader.names)
+    finally:
+        reader.close()
+
+
 def test_learner_reports_a_bad_clip_without_raising(model, tmp_path):
     failures = []
     learner = learn.Learner(model, lambda _: pytest.fail("nothing to learn"), on_fail=failures.append)

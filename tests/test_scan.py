@@ -142,3 +142,18 @@ def test_default_rates_are_the_2018_ones():
     from jaxstyle.mason2018 import fewshot
 
     assert scan.DEFAULT_RATES == (0.3, 0.5, 0.7) == fewshot.SweepConfig().rates
+
+
+def test_row_buckets_are_powers_of_two_then_eighths():
+    assert [scan.row_bucket(n) for n in (0, 1, 2, 3, 600, 1024, 1025, scan.SMALL_ROWS)] == \
+        [1, 1, 2, 4, 1024, 1024, 2048, scan.SMALL_ROWS]
+    for n in (scan.SMALL_ROWS + 1, 20_000, 100_003, 1_000_000):
+        bucket = scan.row_bucket(n)
+        step = 1 << (n.bit_length() - 3)
+        assert n <= bucket < n + step and bucket % step == 0 and bucket <= 1.25 * n
+    x, phase = np.arange(30.0).reshape(10, 3), np.arange(10.0)
+    px, pphase = scan.pad_rows(x, phase)
+    assert px.shape == (16, 3) and pphase.shape == (16,)
+    np.testing.assert_array_equal(px[:10], x)
+    np.testing.assert_array_equal(pphase[:10], phase)
+    assert not np.asarray(px[10:]).any() and not np.asarray(pphase[10:]).any()

@@ -46,6 +46,7 @@ from jaxstyle.cli.common import (
     one_line,
     resolve_defaults,
     start_distributed,
+    use_xla_cache,
 )
 
 COMMANDS = (demo, data, train_base, sweep, lpn, synthesize, render, bench, play)
@@ -252,6 +253,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 and not (Path(args.run) / "base" / "base.json").is_file()):
             raise CLIError(f"no base model in {Path(args.run) / 'base'}: train one first with "
                            "`jaxstyle train-base --data PATH --run RUN` (or run `jaxstyle demo`)")
+        use_xla_cache()
         writer = start_distributed(args)
         if "run" in vars(args):
             if writer:

@@ -6,7 +6,17 @@ import re
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import DEMO_RUN, SWEEP_RATES, CLIError, Run, add_common, check_positive, check_rates, finite
+from jaxstyle.cli.common import (
+    DEMO_RUN,
+    LEARN_EPOCHS,
+    SWEEP_RATES,
+    CLIError,
+    Run,
+    add_common,
+    check_positive,
+    check_rates,
+    finite,
+)
 
 PLAY_MODELS = ("pfnn", "lpn-film", "lpn-onehot", "lpn-resad", "mann-film", "pfnn-film", "pfnn-onehot", "pfnn-resad")
 """``--model``: the 2018 PFNN and the 2022 models of Table 2 (``jaxstyle.mason2022.synthesis.MODELS``)."""
@@ -57,8 +67,8 @@ def add_arguments(p) -> None:
     p.add_argument("--model", choices=PLAY_MODELS, default=None,
                    help="the model to start with: pfnn (the 2018 base, RUN/base) or the run's trained 2022 model "
                         "(lpn-film ...: RUN/lpn); default pfnn when the run has one; the page switches between them")
-    p.add_argument("--learn-epochs", type=int, default=40, help="fine-tuning epochs of a style learned live "
-                                                                 "(the demo's sweep uses 40)")
+    p.add_argument("--learn-epochs", type=int, default=LEARN_EPOCHS,
+                   help="fine-tuning epochs of a style learned live (default %(default)s, the sweep's)")
     p.add_argument("--rates", type=finite, nargs="+", default=SWEEP_RATES, help="dropout rates to sweep when learning")
     p.add_argument("--record-seconds", type=finite, default=10.0, help="seconds the Record button saves by default")
 

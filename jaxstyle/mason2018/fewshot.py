@@ -116,8 +116,11 @@ class AdapterLoss:
 
 
 def frozen_inputs(params: dict, x, y, phase) -> dict:
-    """The frozen tree of :class:`AdapterLoss`: the base network and all styles' rows."""
-    return {"params": params, "x": jnp.asarray(x), "y": jnp.asarray(y), "phase": jnp.asarray(phase)}
+    """The frozen tree of :class:`AdapterLoss`: the base network and all styles' rows, zero-padded
+    to :func:`jaxstyle.train.scan.row_bucket` rows (batches index the real rows only), so clips of
+    other lengths reuse the compiled sweep."""
+    x, y, phase = scan.pad_rows(x, y, phase)
+    return {"params": params, "x": x, "y": y, "phase": phase}
 
 
 def _loss_of(config: SweepConfig) -> AdapterLoss:

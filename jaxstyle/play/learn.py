@@ -24,9 +24,9 @@ from typing import Callable, Sequence
 
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.mason2018 import pipeline
-from jaxstyle.motion.bvh import read_bvh
+from jaxstyle.motion.bvh import read_bvh_names
 from jaxstyle.play.session import PlayError, PlayModel, Style, learned_root
-from jaxstyle.train.defaults import DEFAULT_RATES
+from jaxstyle.train.defaults import DEFAULT_RATES, LEARN_EPOCHS
 
 STAGES = ("reading the clip", "fine-tuning", "closed-loop checks", "done")
 
@@ -41,13 +41,7 @@ def style_name(path: str | Path, taken: Sequence[str] = ()) -> str:
     return name
 
 
-def clip_joint_names(path: str | Path) -> tuple[str, ...]:
-    """The joint names of the BVH file at ``path`` (read in full, so a malformed file is refused
-    with its line); small enough to return from a reader process (:class:`ClipReader`)."""
-    return tuple(read_bvh(path).names)
-
-
-def check_clip(path: str | Path, model: PlayModel, read_names: Callable[[Path], tuple[str, ...]] = clip_joint_names
+def check_clip(path: str | Path, model: PlayModel, read_names: Callable[[Path], tuple[str, ...]] = read_bvh_names
                ) -> None:
     """Refuse, with one line naming the file, a clip that is not BVH or not of the base's skeleton
     (joint names and count), before any training starts. ``read_names``: how the file is read
@@ -69,20 +63,37 @@ class ClipReader:
     """Reads clips in a separate process (spawned once, kept): parsing a large file there holds
     neither the live server's session lock nor its interpreter lock, so the render loop keeps its
     frame rate; a read that takes longer than ``timeout`` seconds is stopped (the process is
-    ended and a fresh one spawned for the next)."""
+    ended and a fresh one spawned for the next). The process imports only the BVH reader
+    (:func:`jaxstyle.motion.bvh.read_bvh_names`); :meth:`warm` starts it ahead of the first clip."""
 
     def __init__(self, timeout: float = 60.0):
         self.timeout = float(timeout)
         self._pool = None
         self._lock = threading.Lock()
 
+    def _started(self):
+        import multiprocessing
+
+        if self._pool is None:
+            self._pool = multiprocessing.get_context("spawn").Pool(1)
+        return self._pool
+
+    def warm(self) -> None:
+        """Start the reader process and import the reader there now (about 0.2 s on 2 CPU cores),
+        so that the first clip is read without that wait; errors are left to the first read."""
+        with self._lock:
+            try:
+                self._started().apply_async(read_bvh_names, ("",)).get(self.timeout)
+            except (OSError, ValueError):
+                pass  # the empty path is refused once the reader is imported: that is all this waits for
+            except Exception:  # noqa: BLE001 - a warm-up never fails the server; the first read will say why
+                self._end()
+
     def names(self, path: Path) -> tuple[str, ...]:
         import multiprocessing
 
         with self._lock:
-            if self._pool is None:
-                self._pool = multiprocessing.get_context("spawn").Pool(1)
-            pending = self._pool.apply_async(clip_joint_names, (path,))
+            pending = self._started().apply_async(read_bvh_names, (path,))
             try:
                 return pending.get(self.timeout)
             except multiprocessing.TimeoutError:
@@ -108,7 +119,7 @@ class Learner:
     ``done`` by then), ``on_fail(message)`` with the one-line message of a failure."""
 
     def __init__(self, model: PlayModel, on_done: Callable[[Style], None], *,
-                 on_fail: Callable[[str], None] = lambda _: None, epochs: int = 40,
+                 on_fail: Callable[[str], None] = lambda _: None, epochs: int = LEARN_EPOCHS,
                  rates: Sequence[float] = DEFAULT_RATES, clip_range: tuple[float, float] | None = None,
                  mirror: bool = True):
         self.model, self.on_done, self.on_fail = model, on_done, on_fail

@@ -144,8 +144,9 @@ class PlayServer:
     :func:`jaxstyle.play.session.available_models`); default the run's 2018 model when it has one.
     """
 
-    def __init__(self, run_dir: str | Path, *, host: str = "127.0.0.1", port: int = 8080, learn_epochs: int = 40,
-                 learn_rates=None, record_seconds: float = 10.0, verbose: bool = False, model: str | None = None,
+    def __init__(self, run_dir: str | Path, *, host: str = "127.0.0.1", port: int = 8080,
+                 learn_epochs: int = learn.LEARN_EPOCHS, learn_rates=None, record_seconds: float = 10.0,
+                 verbose: bool = False, model: str | None = None,
                  log: Callable[[str], None] = lambda _: None, token: str | None = None,
                  data_dirs: tuple[str | Path, ...] = (), runs_root: str | Path | None = None,
                  max_upload_bytes: int = MAX_UPLOAD_BYTES):
@@ -205,6 +206,8 @@ class PlayServer:
         self._gui_setup()
         if load:
             self.load_run(self.run_dir, model)
+        if self.learner is not None:
+            threading.Thread(target=self._reader.warm, name="jaxstyle-play-reader", daemon=True).start()
         if loop:
             self._running.set()
             self._thread = threading.Thread(target=self._loop, name="jaxstyle-play-render", daemon=True)

@@ -6,6 +6,12 @@ import dataclasses
 DEFAULT_RATES: tuple[float, ...] = (0.3, 0.5, 0.7)
 """The few-shot dropout rates of Mason et al. 2018 (their code's keep probabilities 0.7 / 0.5 / 0.3)."""
 
+LEARN_EPOCHS = 100
+"""Fine-tuning epochs of a style learned live in ``jaxstyle play``: the sweep's own default
+(``jaxstyle.mason2018.fewshot.SweepConfig.epochs``). Measured by ``python benchmarks/play.py
+--learn`` on the demo base (10 s clip): 100 epochs are playable within 30 s of the upload and their
+chosen rate validates better than 40 epochs' (docs/play.md)."""
+
 FILM_DEFAULT_RATES: tuple[float, ...] = (0.1, 0.3, 0.5)
 """Dropout rates of the 2022 FiLM generator sweep: lower than the 2018 adapters'
 (:data:`DEFAULT_RATES`), the generator being trained with 0.3."""

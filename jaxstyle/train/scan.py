@@ -13,7 +13,9 @@
 * :func:`fit`: the epoch loop of a full training run (resume from the last checkpoint, chunks of
   steps under a progress bar, a finite-loss check, a checkpoint and a ``log.csv`` row per epoch),
   used by :func:`jaxstyle.mason2018.train.train` and :func:`jaxstyle.mason2022.train.train`.
-* :func:`sweep_batches` and :func:`pair_key`: per-set batch plans and the PRNG key of each cell.
+* :func:`sweep_batches` and :func:`pair_key`: per-set batch plans and the PRNG key of each cell;
+  :func:`row_bucket` / :func:`pad_rows`: data rows padded to a few sizes, so that sets of other
+  lengths (a second clip learned live) reuse the compiled program.
 
 A grid loss is a hashable callable (a frozen dataclass, or a module-level function) called as
 ``loss_fn(trainable, frozen, step_inputs, key, rate, hparams) -> scalar``; it may have a
@@ -38,6 +40,29 @@ from jaxstyle.train import runlog
 from jaxstyle.train.checkpoint import Checkpointer, NonFiniteError, non_finite_leaves
 from jaxstyle.train.defaults import DEFAULT_RATES  # noqa: F401  (re-exported)
 from jaxstyle.train.shard import gather
+
+SMALL_ROWS = 16384  # up to this many rows the data is padded to a power of two
+
+
+def row_bucket(num_rows: int) -> int:
+    """The row count a grid's data is padded to (:func:`pad_rows`): the next power of two up to
+    :data:`SMALL_ROWS` (a few MB of rows: clips of 4-17 s at 60 frames/s with their mirrors share one
+    size), above it the next multiple of ``2 ** (bits - 3)`` (at most a quarter more rows). A
+    compiled program takes the data's shape as part of its signature: without padding every clip
+    length would compile the sweep again."""
+    n = max(int(num_rows), 1)
+    if n <= SMALL_ROWS:
+        return 1 << (n - 1).bit_length()
+    step = 1 << (n.bit_length() - 3)
+    return -(-n // step) * step
+
+
+def pad_rows(*arrays):
+    """``arrays`` (equal first dimension) zero-padded along it to :func:`row_bucket` rows. Batches
+    index only the real rows, so the padding changes no result."""
+    n = arrays[0].shape[0]
+    pad = row_bucket(n) - n
+    return tuple(jnp.pad(jnp.asarray(a), [(0, pad)] + [(0, 0)] * (a.ndim - 1)) for a in arrays)
 
 
 def sweep_batches(rows_per_style: Sequence[np.ndarray], epochs: int, batch_size: int, seed: int = 0
