@@ -40,7 +40,8 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-# How long to wait for something the PAGE must do (render, report its camera, show a text). The
+# How long to wait for something the page or the server's render loop must do (render, report its
+# camera, show a text, advance frames); every wait is on a condition, none is a fixed sleep. The
 # page draws its WebGL in software (SwiftShader; no GPU): on the 2-core machine with the other
 # test process busy it renders at about 4 frames/s at 1280x720 (measured with requestAnimationFrame
 # while a training job ran), and a page that slow once needed over 10 s to show a new status line.
@@ -76,7 +77,7 @@ def open_page(browser, server: PlayServer):
     page = browser.new_page(viewport={"width": 960, "height": 540})
     page.goto(server.url)
     page.wait_for_selector("canvas", timeout=60_000)
-    wait_for(lambda: server._server.get_clients(), 30, "the page to connect")
+    wait_for(lambda: server._server.get_clients(), PAGE_SECONDS, "the page to connect")
     return page
 
 
@@ -113,13 +114,13 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
         lambda cam: reported.append((np.asarray(cam.position), np.asarray(cam.look_at)))))
     # the character is drawn: the render loop runs and its scene nodes exist
     frames = server.session.frames
-    wait_for(lambda: server.session.frames > frames + 30 and server._nodes, 30, "the character")
-    wait_for(lambda: "Controller step" in page.inner_text("body"), 30, "the status line")
+    wait_for(lambda: server.session.frames > frames + 30 and server._nodes, PAGE_SECONDS, "the character")
+    wait_for(lambda: "Controller step" in page.inner_text("body"), PAGE_SECONDS, "the status line")
     # a click on the middle of the 3-D view: a ray through the camera's look-at point meets the
     # floor a little beyond the character; the server walks the character there
     box = page.locator("canvas").first.bounding_box()
     server.session.stop()
-    wait_for(lambda: server.session.characters[0].stand > 0.999, 20, "the character to stand")
+    wait_for(lambda: server.session.characters[0].stand > 0.999, PAGE_SECONDS, "the character to stand")
 
     asked = [0.0]
 
@@ -210,7 +211,7 @@ def test_bad_input_shows_a_message_in_the_page(browser, served, tmp_path):
     page.get_by_text("no base model", exact=False).first.wait_for(timeout=1000 * PAGE_SECONDS)
     # the server is alive and still plays the model it had
     frames = server.session.frames
-    wait_for(lambda: server.session.frames > frames + 10, 10, "the render loop to go on")
+    wait_for(lambda: server.session.frames > frames + 10, PAGE_SECONDS, "the render loop to go on")
     assert server.learner.state == "idle"
     page.close()
 
@@ -230,7 +231,7 @@ def test_learn_a_style_live_and_record(browser, tmp_path):
         page = open_page(browser, server)
         frames = server.session.frames
         page.set_input_files("input[type=file]", str(root / "Proud" / "Proud_FW.bvh"))
-        wait_for(lambda: server.learner.state == "running", 20, "learning to start")
+        wait_for(lambda: server.learner.state == "running", PAGE_SECONDS, "learning to start")
         wait_for(lambda: server.learner.state != "running", 600, "learning to finish", poll=1.0)
         assert server.learner.state == "done", server.learner.message
         assert server.session.frames > frames + 60  # the character walked on meanwhile
