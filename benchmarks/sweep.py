@@ -13,7 +13,8 @@ products in bfloat16; ``adapter-bf16``: both options; see :class:`jaxstyle.mason
 (a) wall time of the vmapped sweep over all styles x rates against a Python loop of the same
     single runs (:func:`jaxstyle.mason2018.fewshot.finetune_one`, same keys, data order and steps), and
     their ratio;
-(b) amortised seconds per (style, rate) pair for ``--epochs`` epochs;
+(b) amortised seconds per (style, rate) pair for ``--epochs`` epochs, and milliseconds per
+    pair-step (one batch-32 training step of one pair: the sweep's time over pairs x steps);
 (c) achieved GFLOP/s of the sweep (FLOPs counted from the layer shapes) over that of plain
     matmuls of the same shapes and dtype run in a ``lax.scan`` of the same length.
 
@@ -181,12 +182,13 @@ def main() -> None:
     print(f"{args.styles} styles of {sizes.min()}-{sizes.max()} rows x {len(args.rates)} rates {tuple(args.rates)}, "
           f"{args.epochs} epochs of batch 32, CP rank {model.rank}, 234 -> 512 -> 512 -> 400\n")
     print("| mode | steps | compile s | sweep s | loop of single runs s | loop / sweep "
-          "| s per pair (sweep) | sweep GFLOP/s | matmul GFLOP/s | sweep / matmul |")
-    print("|---|---|---|---|---|---|---|---|---|---|", flush=True)
+          "| s per pair (sweep) | ms per pair-step (sweep) | sweep GFLOP/s | matmul GFLOP/s | sweep / matmul |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
     for mode in args.modes:
         r = measure(mode, model, x, y, phase, rows, args.rates, args.epochs)
         print(f"| {r['mode']} | {r['steps']} | {r['compile']:.1f} | {r['sweep']:.1f} | {r['loop']:.1f} "
-              f"| {r['loop'] / r['sweep']:.2f}x | {r['sweep'] / r['pairs']:.2f} | {r['gflops']:.0f} "
+              f"| {r['loop'] / r['sweep']:.2f}x | {r['sweep'] / r['pairs']:.2f} "
+              f"| {1e3 * r['sweep'] / (r['pairs'] * r['steps']):.2f} | {r['gflops']:.0f} "
               f"| {r['mm_gflops']:.0f} | {r['gflops'] / r['mm_gflops']:.2f} |", flush=True)
 
 

@@ -206,3 +206,35 @@ def test_rows_beyond_the_batches_change_nothing_and_lengths_share_a_program():
                                      jnp.concatenate([phase, noise[:, 0]]), batches[0], mask[0], 0.3, key, config)
     for a, b in zip(jax.tree.leaves(bigger), jax.tree.leaves(want), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.bfloat16])
+def test_frozen_layer_layout_equals_pf_dense_and_its_input_gradient(dtype):
+    """``freeze_weights`` + ``pf_dense``: the ``(I, K*O)`` layout gives the ``(K, I, O)`` layer's
+    output and input gradient (float32: to float rounding; bfloat16: against a float64 numpy
+    reference of the bfloat16-rounded operands, the cotangent rounded too), and no weight gradient."""
+    rng = np.random.default_rng(7)
+    layer = {"W": jnp.asarray(rng.normal(size=(4, 6, 5)), jnp.float32),
+             "b": jnp.asarray(rng.normal(size=(4, 5)), jnp.float32)}
+    h = jnp.asarray(rng.normal(size=(9, 6)), jnp.float32)
+    w = pfnn.spline_weights(jnp.asarray(rng.uniform(size=9), jnp.float32))
+    g = jnp.asarray(rng.normal(size=(9, 5)), jnp.float32)
+    frozen = pfnn.freeze_weights({"l": layer}, dtype)["l"]
+    assert frozen["W"].shape == (6, 20) and frozen["W"].dtype == dtype
+    out, vjp = jax.vjp(lambda x: pfnn.pf_dense(frozen, x, w), h)
+    (dh,) = vjp(g)
+    assert out.dtype == jnp.float32 and dh.dtype == jnp.float32
+
+    def r(a):  # the operand as the product sees it, in float64
+        return np.asarray(jnp.asarray(a).astype(dtype).astype(jnp.float32), np.float64)
+    w64, W64 = np.asarray(w, np.float64), r(layer["W"])
+    want = np.einsum("bk,bko->bo", w64, np.einsum("bi,kio->bko", r(h), W64) + np.asarray(layer["b"], np.float64))
+    g_wide = np.asarray(w, np.float32)[:, :, None] * np.asarray(g)[:, None, :]  # the blend's cotangent
+    want_dh = np.einsum("bko,kio->bi", r(g_wide), W64)
+    np.testing.assert_allclose(np.asarray(out), want, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(dh), want_dh, rtol=1e-5, atol=1e-5)
+    if dtype == jnp.float32:  # and equal to automatic differentiation of the (K, I, O) layer
+        ref, ref_vjp = jax.vjp(lambda x: pfnn.pf_dense(layer, x, w), h)
+        np.testing.assert_allclose(np.asarray(out), np.asarray(ref), rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(np.asarray(dh), np.asarray(ref_vjp(g)[0]), rtol=1e-5, atol=1e-5)
+    assert np.all(np.asarray(jax.grad(lambda W: pfnn.pf_dense({**frozen, "W": W}, h, w).sum())(frozen["W"])) == 0)

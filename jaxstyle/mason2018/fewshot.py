@@ -46,11 +46,12 @@ class SweepConfig:
     by every step and every (style, rate) pair; each step runs only the adapter and the last
     layer. The paper also drops units of the frozen layers, which regularises the adapter more.
 
-    ``matmul_dtype="bfloat16"``: the frozen base's layer products run in bfloat16 (weights cast
-    once per call, activations per step, float32 accumulation; the adapter, its gradients and
-    Adam stay float32). Faster where the hardware has bfloat16 matrix units (GPU tensor cores,
-    CPUs with AMX); results differ from float32 by the bfloat16 rounding (about 3 significant
-    digits) of the frozen layers' inputs and weights. ``benchmarks/sweep.py`` measures the speed
+    ``matmul_dtype="bfloat16"``: the frozen base's layer products, forward and input gradient,
+    run in bfloat16 (weights cast once per call, activations and cotangents per step, float32
+    accumulation: :func:`jaxstyle.nn.pfnn.frozen_product`; the adapter, its gradients and Adam
+    stay float32). Faster where the hardware multiplies bfloat16 faster (GPU tensor cores, CPUs
+    with AMX or avx512_bf16); results differ from float32 by the bfloat16 rounding (about 3
+    significant digits) of the frozen layers' inputs, cotangents and weights. ``benchmarks/sweep.py`` measures the speed
     and ``experiments/fewshot_sweep.py --matmul-dtype bfloat16`` the effect on the losses.
     """
 
@@ -99,14 +100,15 @@ class AdapterLoss:
     """The loss of one (style, rate) cell for :func:`jaxstyle.train.scan.grid_sweep` and
     :func:`jaxstyle.train.scan.run_pair`: the trainable tree is the adapter, ``frozen`` is
     :func:`frozen_inputs`, the step input a batch of row indices, ``hparams`` ``{"lambda_s"}``.
-    :meth:`prepare` casts the base's weights to ``matmul_dtype`` and, with
+    :meth:`prepare` lays the base's weights out frozen in ``matmul_dtype``
+    (:func:`jaxstyle.nn.pfnn.freeze_weights`) and, with
     ``adapter_dropout_only``, caches :func:`frozen_activations` once per compiled call."""
 
     adapter_dropout_only: bool = False
     matmul_dtype: str = "float32"
 
     def prepare(self, frozen: dict) -> dict:
-        params = pfnn.cast_weights(frozen["params"], jnp.dtype(self.matmul_dtype))
+        params = pfnn.freeze_weights(frozen["params"], jnp.dtype(self.matmul_dtype))
         cache = frozen_activations(params, frozen["x"], frozen["phase"]) if self.adapter_dropout_only else None
         return {**frozen, "params": params, "cache": cache}
 

@@ -105,8 +105,14 @@ def pf_dense(layer: dict, h_BxI: jax.Array, weights_Bx4: jax.Array) -> jax.Array
     layers' outputs blended, never a weight matrix per sample.
 
     The product runs in the dtype of ``W`` (e.g. a frozen base cast to bfloat16 by
-    :func:`cast_weights`), accumulating in float32; the result is float32."""
+    :func:`cast_weights`), accumulating in float32; the result is float32. A layer whose ``W`` is
+    2-D was made frozen by :func:`freeze_weights`: its product (forward and input gradient) is
+    :func:`frozen_product`."""
     w = layer["W"]
+    if w.ndim == 2:  # a frozen layer laid out by freeze_weights: (I, K*O)
+        out_BxKO = frozen_product(h_BxI, w)
+        out_BxKxO = out_BxKO.reshape(h_BxI.shape[0], weights_Bx4.shape[-1], -1) + layer["b"]
+        return jnp.einsum("bk,bko->bo", weights_Bx4, out_BxKxO)
     h = h_BxI.astype(w.dtype)
     if h.shape[0] <= SMALL_BATCH and isinstance(w, jax.core.Tracer):
         # K products h @ W_k, batched over the control points: W is read in its stored (K, I, O)
@@ -119,6 +125,42 @@ def pf_dense(layer: dict, h_BxI: jax.Array, weights_Bx4: jax.Array) -> jax.Array
         return jnp.einsum("bk,kbo->bo", weights_Bx4, out_KxBxO + layer["b"][:, None])
     out_Bx4xO = jnp.einsum("bi,kio->bko", h, w, preferred_element_type=jnp.float32) + layer["b"]
     return jnp.einsum("bk,bko->bo", weights_Bx4, out_Bx4xO)
+
+
+@jax.custom_vjp
+def frozen_product(h_BxI: jax.Array, W_IxN: jax.Array) -> jax.Array:
+    """``h @ W`` for a frozen ``W`` (no gradient flows to it), operands in ``W``'s dtype, accumulated
+    and returned in float32. Its input gradient ``g @ W^T`` also runs in ``W``'s dtype (the float32
+    cotangent rounded to it): automatic differentiation of a bfloat16 product with a float32 result
+    would multiply the float32 cotangent by ``W`` converted to float32, at the float32 rate."""
+    return jnp.matmul(h_BxI.astype(W_IxN.dtype), W_IxN, preferred_element_type=jnp.float32)
+
+
+def _frozen_product_fwd(h_BxI, W_IxN):
+    return frozen_product(h_BxI, W_IxN), (W_IxN, jnp.zeros((0,), h_BxI.dtype))  # h's dtype, as an array
+
+
+def _frozen_product_bwd(res, g_BxN):
+    W_IxN, h_dtype = res[0], res[1].dtype
+    dh = jax.lax.dot_general(g_BxN.astype(W_IxN.dtype), W_IxN, (((1,), (1,)), ((), ())),
+                             preferred_element_type=jnp.float32)
+    return dh.astype(h_dtype), None
+
+
+frozen_product.defvjp(_frozen_product_fwd, _frozen_product_bwd)
+
+
+def freeze_weights(params: dict, dtype=jnp.float32) -> dict:
+    """``params`` of phase-functioned layers (``W (K, I, O)``) made frozen: every ``W`` stored as
+    ``(I, K*O)`` in ``dtype`` (control points side by side, biases unchanged), which
+    :func:`pf_dense` multiplies as one product of contiguous operands forward (``h @ W``) and
+    backward (``g @ W^T``) through :func:`frozen_product`, with no gradient for the weights. In
+    the ``(K, I, O)`` layout a traced ``W`` is copied into another layout on every product
+    (``python benchmarks/sweep.py`` measures the difference)."""
+    def one(layer):
+        w = layer["W"]
+        return {**layer, "W": jnp.transpose(w, (1, 0, 2)).reshape(w.shape[1], -1).astype(dtype)}
+    return {name: one(layer) for name, layer in params.items()}
 
 
 def cast_weights(params: dict, dtype) -> dict:
