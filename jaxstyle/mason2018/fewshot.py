@@ -51,8 +51,9 @@ class SweepConfig:
     accumulation: :func:`jaxstyle.nn.pfnn.frozen_product`; the adapter, its gradients and Adam
     stay float32). Faster where the hardware multiplies bfloat16 faster (GPU tensor cores, CPUs
     with AMX or avx512_bf16); results differ from float32 by the bfloat16 rounding (about 3
-    significant digits) of the frozen layers' inputs, cotangents and weights. ``benchmarks/sweep.py`` measures the speed
-    and ``experiments/fewshot_sweep.py --matmul-dtype bfloat16`` the effect on the losses.
+    significant digits) of the frozen layers' inputs, cotangents and weights.
+    ``benchmarks/sweep.py`` measures the speed and ``experiments/fewshot_sweep.py --matmul-dtype
+    bfloat16`` the effect on the losses.
     """
 
     model: pfnn.PFNNConfig = pfnn.PFNNConfig()

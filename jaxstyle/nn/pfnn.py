@@ -164,8 +164,10 @@ def freeze_weights(params: dict, dtype=jnp.float32) -> dict:
 
 
 def cast_weights(params: dict, dtype) -> dict:
-    """``params`` with every weight matrix ``W`` in ``dtype`` (biases stay float32): a frozen base
-    whose layer products then run in that precision (see :func:`pf_dense`)."""
+    """``params`` with every weight matrix ``W`` in ``dtype`` (biases stay float32), layout
+    unchanged: layer products then run in that precision (see :func:`pf_dense`) and gradients
+    still reach the float32 weights through the cast (mixed-precision training). A frozen base
+    is laid out by :func:`freeze_weights` instead."""
     return jax.tree_util.tree_map_with_path(
         lambda path, v: v.astype(dtype) if getattr(path[-1], "key", None) == "W" else v, params)
 
