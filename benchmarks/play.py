@@ -46,14 +46,15 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from jaxstyle.control.controller import PFNNModel
 from jaxstyle.data import procedural
+from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline
 from jaxstyle.mason2022 import pipeline as pipeline2022
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn, style_models
-from jaxstyle.output import synthesis
 from jaxstyle.play import session
 from jaxstyle.train.defaults import LEARN_EPOCHS
 
@@ -74,7 +75,7 @@ def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> session.
                          settings)
     styles = {name: session.Style(name, "base", None, a) for name, a in zip(("A", "B", "C"), adapters, strict=True)}
     upm = estimate_units_per_meter(skeleton)
-    speed = synthesis.own_speed(dataset, synthesis.style_rows(dataset, "Neutral"), upm)
+    speed = PFNNModel.own_speed(dataset, style_rows(dataset, "Neutral"), upm)
     return session.PlayModel(base, styles, upm, speed, folder)
 
 

@@ -6,12 +6,13 @@ and the 2022 LPN with FiLM, at the papers' sizes. No motion capture needed.
 
 Rows, all measured in this run on the default JAX device:
 
-* ``live step, batch 1``: one jitted call per displayed frame (``controller.step_fn``), the
+* ``live step, batch 1``: one jitted call per displayed frame (``jaxstyle.control.model.step_fn``), the
   latency an interactive runtime sees, Python dispatch included; PFNN with the 50-bin table (the
   paper's runtime) and with the continuous phase; LPN-FiLM with its FiLM vector precomputed;
 * ``scan, batch 1``: ``--frames`` frames generated in one jitted ``lax.scan`` (offline synthesis),
   per frame;
-* ``scan, batch N``: ``N`` characters at once (``rollout_batch``), frames per second over all.
+* ``scan, batch N``: ``N`` characters at once (``jaxstyle.control.model.rollout_batch``), frames per
+  second over all.
 
 Times are the mean and standard deviation over ``--runs`` runs (of ``--calls`` calls for the live
 step). Weights are random at the papers' sizes (timing does not depend on their values); the
@@ -30,7 +31,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control import controller, lpn_controller, paths
+from jaxstyle.control import controller, loop, lpn_controller, paths
+from jaxstyle.control.controller import PFNNModel
+from jaxstyle.control.lpn_controller import StyleNetModel
+from jaxstyle.control.model import rollout, rollout_batch, step_fn
 from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import PFNNLayout
@@ -90,7 +94,7 @@ def main() -> None:
     print(f"device: {dev.device_kind} ({dev.platform}), {platform.machine()} host with {os.cpu_count()} cores, "
           f"jax {jax.__version__}\n")
     print("| model | mode | characters | ms per frame | frames/s | paper ms |\n|---|---|---|---|---|---|")
-    controls = controller.signal_controls(paths.circle(args.frames / 60.0, 1.0, 2.0))
+    controls = loop.signal_controls(paths.circle(args.frames / 60.0, 1.0, 2.0))
     one_control = (controls.offsets[0], controls.yaw[0])
     n = args.batch
     batch_controls = _stack(controls, n)
@@ -99,27 +103,28 @@ def main() -> None:
     name = "PFNN-CP (2018)"
     params, adapter, xn, yn, state = pfnn_setup()
     table, adapter_table = pfnn.discretise(params), pfnn.discretise(adapter)
-    for label, step in (("live step, 50-bin table", controller.step_fn(table, adapter_table, xn, yn, NUM_JOINTS,
-                                                                       table=True)),
-                        ("live step, continuous phase", controller.step_fn(params, adapter, xn, yn, NUM_JOINTS))):
+    tabled = PFNNModel.create(table, (xn, yn), NUM_JOINTS, table=True)
+    continuous = PFNNModel.create(params, (xn, yn), NUM_JOINTS)
+    for label, step in (("live step, 50-bin table", step_fn(tabled, adapter_table)),
+                        ("live step, continuous phase", step_fn(continuous, adapter))):
         mean, std = time_call(partial(step, state, one_control), calls=args.calls, runs=args.runs)
         _row(name, label, 1, mean, std, 1)
-    run = partial(controller.rollout, table, adapter_table, xn, yn, state, controls, table=True)
+    run = partial(rollout, tabled, adapter_table, state, controls)
     _row(name, "scan, 50-bin table", 1, *time_call(run, **scan_runs), args.frames)
-    run = partial(controller.rollout_batch, params, _stack(adapter, n), xn, yn, _stack(state, n), batch_controls)
+    run = partial(rollout_batch, continuous, _stack(adapter, n), _stack(state, n), batch_controls)
     out = run()
     _row(name, "scan, continuous phase", n, *time_call(run, **scan_runs), args.frames * n)
     finite = bool(np.isfinite(np.asarray(out.positions)).all())
 
     name = "LPN-FiLM (2022)"
     cfg, params, film_vector, xn, yn, state = lpn_setup()
-    step = lpn_controller.step_fn(params, cfg, film_vector, xn, yn, NUM_BONES)
+    lpn = StyleNetModel.create(params, cfg, (xn, yn))
+    step = step_fn(lpn, film_vector)
     mean, std = time_call(partial(step, state, one_control), calls=args.calls, runs=args.runs)
     _row(name, "live step, FiLM precomputed", 1, mean, std, 1)
-    run = partial(lpn_controller.rollout, params, cfg, film_vector, xn, yn, state, controls)
+    run = partial(rollout, lpn, film_vector, state, controls)
     _row(name, "scan", 1, *time_call(run, **scan_runs), args.frames)
-    run = partial(lpn_controller.rollout_batch, params, cfg, _stack(film_vector, n), xn, yn, _stack(state, n),
-                  batch_controls)
+    run = partial(rollout_batch, lpn, _stack(film_vector, n), _stack(state, n), batch_controls)
     out = run()
     _row(name, "scan", n, *time_call(run, **scan_runs), args.frames * n)
     finite &= bool(np.isfinite(np.asarray(out.positions)).all())

@@ -36,7 +36,8 @@ Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output)
    its FiLM generator was fine-tuned on, when the folder has them) are driven by the 2022
    controller along the same paths, at the same speeds rule, with the same path-following law,
    and measured by the same function beside the same captures
-   (:func:`jaxstyle.output.quality.run_lpn`); a model the controller cannot drive is skipped
+   (:func:`jaxstyle.output.quality.run` with the model's
+   :class:`jaxstyle.control.lpn_controller.StyleNetModel`); a model the controller cannot drive is skipped
    with one line saying why. Rows carry a ``model`` column.
 
 Writes to ``--run``: ``quality.csv``, ``quality.md`` (the table, the targets, the diagnosis),
@@ -139,7 +140,7 @@ def main() -> None:
         subjects.append(quality.Subject(f"{name} (few-shot, rate {chosen[name]['rate']:g})", "few-shot", adapter,
                                         shots, name))
     t1 = time.perf_counter()
-    rows, drawn = quality.run(base.params, base.normalisers, subjects, base.skeleton, seconds=a.seconds)
+    rows, drawn = quality.run(base.character_model(), subjects, base.skeleton, seconds=a.seconds)
     t_measure = time.perf_counter() - t1
     t1 = time.perf_counter()
     rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds)

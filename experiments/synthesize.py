@@ -57,7 +57,7 @@ def main() -> None:
     except pipeline.PipelineError as e:
         parser.error(f"{e} (run python experiments/fewshot_sweep.py first)")
     print("speeds (m/s): " + ", ".join(f"{n} {v:.2f}" for n, v in result.speeds.items()))
-    print(f"\n{pipeline.rollout_summary(result, len(chars), len(a.paths))}")
+    print(f"\n{result.summary(len(chars), len(a.paths))}")
     lines = synthesis.quality_table(result.rows)
     (a.out / "results.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -9,7 +9,8 @@ contract that import-linter checks):
 - data: locating and fetching capture, procedural clips, both papers' features, datasets;
 - nn: the networks of both papers as pure functions (and Flax NNX modules over them); train: checkpoints
   and run logs;
-- control: paths and the controllers; output: export, foot IK, previews, metrics, synthesis;
+- control: paths, the shared closed loop, the CharacterModel interface and both papers' models of it;
+  output: driving characters, export, foot locking, previews, metrics, synthesis, the quality benchmark;
 - mason2018 and mason2022: each paper's workflows; cli: the jaxstyle command.
 
 import jaxstyle is light: the names below load from their modules on first use.
@@ -24,6 +25,8 @@ _SUBPACKAGES = ["cli", "control", "data", "labels", "mason2018", "mason2022", "m
 
 _NAMES = {
     "BaseSettings": "mason2018.pipeline",
+    "Character": "output.drive",
+    "CharacterModel": "control.model",
     "CharacterFrames": "motion.character_frame",
     "FiLMConfig": "nn.film_generator",
     "FiLMFinetuneConfig": "mason2022.train",
@@ -40,14 +43,17 @@ _NAMES = {
     "MotionQuality": "output.metrics",
     "Normaliser": "data.normalise",
     "PFNNLayout": "data.pfnn_features",
+    "PFNNModel": "control.controller",
     "PFNNModule": "nn.modules",
     "PathSignal": "control.paths",
     "RolloutCheck": "mason2018.selection",
     "SinusoidFit": "labels.sinusoid",
     "StyleModelConfig": "nn.style_models",
+    "StyleNetModel": "control.lpn_controller",
     "SweepConfig": "mason2018.fewshot",
     "SweepResult": "mason2018.selection",
     "balanced_batches": "data.batching",
+    "blend_character": "output.drive",
     "bone_lengths": "motion.kinematics",
     "build_lpn_dataset": "data.datasets",
     "build_pfnn_dataset": "data.datasets",
@@ -57,6 +63,7 @@ _NAMES = {
     "decode_lpn": "data.lpn_features",
     "decode_pfnn": "data.pfnn_features",
     "default_mocap_dir": "data.locate",
+    "drive": "output.drive",
     "encode_lpn": "data.lpn_features",
     "encode_pfnn": "data.pfnn_features",
     "estimate_units_per_meter": "labels.contacts",
@@ -90,8 +97,8 @@ _NAMES = {
     "reference_quality": "output.metrics",
     "resample": "motion.transform",
     "rest_positions": "motion.kinematics",
-    "rollout": "control.controller",
-    "rollout_batch": "control.controller",
+    "rollout": "control.model",
+    "rollout_batch": "control.model",
     "rollout_motion": "output.export",
     "root_trajectory": "motion.kinematics",
     "rotate": "motion.transform",
@@ -100,10 +107,11 @@ _NAMES = {
     "scale": "motion.transform",
     "set_up_axis": "motion.transform",
     "skeleton_height": "motion.kinematics",
+    "step_fn": "control.model",
     "sweep_batches": "train.scan",
     "synthesize": "output.synthesis",
     "train_base": "mason2018.pipeline",
-    "turning_path": "control.controller",
+    "turning_path": "control.loop",
     "write_bvh": "motion.bvh",
     "write_report": "mason2018.selection",
 }

@@ -109,7 +109,7 @@ def test_train_base_then_sweep_and_synthesize(demo_run, tiny_data, tmp_path, cap
     out = run / "synthesis"
     assert (out / "straight.gif").is_file() and (out / "zigzag.gif").is_file()
     names = sorted(p.stem for p in (out / "bvh").glob("*.bvh"))
-    assert len(names) == 8 and "blend_Crouched_FW_Limping_FW_zigzag" in names
+    assert len(names) == 8 and "blend_Crouched_FW50_Limping_FW50_zigzag" in names
     with open(out / "quality.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     # 8 characters x paths, then one real clip each of Neutral, Crouched and Limping

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle.control import controller
+from jaxstyle.control import controller, loop
+from jaxstyle.control.controller import PFNNModel
+from jaxstyle.control.model import rollout
 from jaxstyle.data.datasets import ClipSpec, load_clip
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.motion import kinematics
@@ -19,19 +21,19 @@ from jaxstyle.output import metrics
 
 def test_path_controls_of_a_straight_walk():
     fps, speed = 60.0, 1.5
-    c = controller.turning_path(100, speed, 0.0, fps, start_yaw=np.pi / 2)  # walk along +X
+    c = loop.turning_path(100, speed, 0.0, fps, start_yaw=np.pi / 2)  # walk along +X
     offsets = np.asarray(c.offsets)
     want = speed * 10 * np.arange(6) / fps
     np.testing.assert_allclose(offsets[:, :, 0], np.broadcast_to(want, (100, 6)), atol=1e-5)
     np.testing.assert_allclose(offsets[:, :, 1], 0.0, atol=1e-5)
     np.testing.assert_allclose(np.asarray(c.yaw), np.pi / 2, atol=1e-6)
     with pytest.raises(ValueError, match="finite"):
-        controller.path_controls(np.full((5, 2), np.nan), np.zeros(5))
+        loop.path_controls(np.full((5, 2), np.nan), np.zeros(5))
 
 
 def test_turning_path_integrates_an_arc():
     fps, speed, rate = 60.0, 1.2, np.deg2rad(45)
-    c = controller.turning_path(200, speed, rate, fps)
+    c = loop.turning_path(200, speed, rate, fps)
     # offset 50 frames ahead of frame 0 on a circle of radius speed / rate (first-order integration)
     t = 50 / fps
     r = speed / rate
@@ -55,14 +57,14 @@ def test_teacher_forced_loop_reproduces_the_encoded_inputs(clip):
     t0, n = t[0], 100
     idx = t[:n][:, None] + 10 * np.arange(6)[None]
     disp = rotate_yaw(frames.origin[idx] - frames.origin[t[:n]][:, None], np.full(idx.shape, -frames.yaw[t0]))
-    controls = controller.Controls(jnp.asarray(disp[..., [0, 2]], jnp.float32),
+    controls = loop.Controls(jnp.asarray(disp[..., [0, 2]], jnp.float32),
                                    jnp.asarray(frames.yaw[idx] - frames.yaw[t0], jnp.float32))
     state = controller.initial_state(x[0], phase[t0], m.num_joints)
     start = CharacterFrames(frames.origin[[t0]], frames.yaw[[t0]])
     g_pos = kinematics.global_positions(m)
     for i in range(n):
         built = np.asarray(controller.assemble_input(state, (controls.offsets[i], controls.yaw[i])))
-        if i >= controller.HISTORY - 1:
+        if i >= loop.HISTORY - 1:
             np.testing.assert_allclose(built, x[i], atol=1e-3 * np.abs(x[i]).max())
         else:  # before that the history is interpolated between the 10-frame samples
             np.testing.assert_allclose(built[24:], x[i][24:], atol=1e-3 * np.abs(x[i]).max())  # all but past x/z
@@ -113,12 +115,13 @@ def test_rollout_vmaps_over_adapters_and_is_finite(clip):
     x_norm = Normaliser(x.mean(0), x.std(0) + 1e-3)
     y_norm = Normaliser(y.mean(0), y.std(0) + 1e-3)
     state = controller.initial_state(x[0], phase[t[0]], m.num_joints)
-    path = controller.turning_path(40, 100.0, np.deg2rad(30))
-    many = jax.vmap(lambda a: controller.rollout(params, a, x_norm, y_norm, state, path))(adapters)
+    path = loop.turning_path(40, 100.0, np.deg2rad(30))
+    model = PFNNModel.create(params, (x_norm, y_norm), m.num_joints)
+    many = jax.vmap(lambda a: rollout(model, a, state, path))(adapters)
     assert many.positions.shape == (3, 40, m.num_joints, 3)
     assert np.isfinite(np.asarray(many.positions)).all()
     for k in (0, 2):
-        one = controller.rollout(params, jax.tree.map(lambda v, k=k: v[k], adapters), x_norm, y_norm, state, path)
+        one = rollout(model, jax.tree.map(lambda v, k=k: v[k], adapters), state, path)
         np.testing.assert_allclose(np.asarray(many.positions[k]), np.asarray(one.positions), rtol=1e-4, atol=1e-2)
     # the recorded outputs decode (numpy decode_pfnn, the reference) to the same root path
     decoded, _ = js.decode_pfnn(np.asarray(one.outputs), m)
@@ -178,10 +181,10 @@ def test_stop_and_go_stops_and_starts_again(tiny_walker):
     upm = js.estimate_units_per_meter(skeleton)
     speed = 1.0
     sig = paths.stop_and_go(6.0, speed, units_per_meter=upm)
-    row = controller.start_row(dataset.inputs, speed, units_per_meter=upm)
+    row = loop.start_row(dataset.inputs, speed, units_per_meter=upm)
     state = controller.initial_state(dataset.inputs[row], float(dataset.phases[row, 0]), skeleton.num_joints)
-    x_norm, y_norm = dataset.normalisers()
-    out = controller.rollout(params, None, x_norm, y_norm, state, controller.signal_controls(sig))
+    model = PFNNModel.create(params, dataset.normalisers(), skeleton.num_joints)
+    out = rollout(model, None, state, loop.signal_controls(sig))
     origin = np.asarray(out.origin)
     assert np.isfinite(origin).all()
     stops = metrics.stop_times(origin, sig.velocity, 60.0, units_per_meter=upm)
@@ -199,7 +202,7 @@ def test_stop_and_go_stops_and_starts_again(tiny_walker):
     decoded_root = js.global_positions(js.decode_pfnn(np.asarray(out.outputs), skeleton)[0])[:, 0, [0, 2]]
     np.testing.assert_allclose(decoded_root, np.asarray(out.positions)[:, 0, [0, 2]], atol=0.05 * upm)
     # open loop (no stand amount, no following) the same model does not stop within 0.5 s
-    open_loop = controller.rollout(params, None, x_norm, y_norm, state,
-                                   controller.Controls(*controller.signal_controls(sig, follow_seconds=None)[:2]))
+    open_loop = rollout(model, None, state,
+                        loop.Controls(*loop.signal_controls(sig, follow_seconds=None)[:2]))
     late = metrics.stop_times(np.asarray(open_loop.origin), sig.velocity, 60.0, units_per_meter=upm)
     assert not np.all(late <= 0.5), late

@@ -16,6 +16,8 @@ import pytest
 
 from jaxstyle import cli
 from jaxstyle.control import loop, lpn_controller
+from jaxstyle.control.lpn_controller import StyleNetModel
+from jaxstyle.control.model import rollout
 from jaxstyle.data import procedural
 from jaxstyle.data.folders import PipelineError
 from jaxstyle.data.lpn_features import bone_points
@@ -91,7 +93,7 @@ def test_film_sweep_from_a_user_clip_chooses_a_rate_and_writes_its_generator(fol
     state = lpn_controller.initial_state(data.new.inputs[start], data.new.phases[start],
                                          len(bone_points(data.skeleton)[0]))
     controls = loop.turning_path(int(round(5 * fps)), speed, np.deg2rad(45.0), fps)
-    alone = lpn_controller.rollout(m.params, m.config, vec, *data.base.normalisers(), state, controls)
+    alone = rollout(StyleNetModel.create(m.params, m.config, data.base.normalisers()), vec, state, controls)
     origin = np.asarray(alone.origin)
     progress = np.sum(np.linalg.norm(np.diff(origin, axis=0), axis=-1)) / (speed * 5.0)
     np.testing.assert_allclose(checked["progress"][0, c], progress, rtol=1e-4)

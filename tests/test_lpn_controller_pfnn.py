@@ -20,8 +20,10 @@ import pytest
 import jaxstyle as js
 from jaxstyle.cli.main import main
 from jaxstyle.control import loop, lpn_controller, paths
+from jaxstyle.control.lpn_controller import StyleNetModel
+from jaxstyle.control.model import rollout, rollout_batch, step_fn
 from jaxstyle.data import datasets
-from jaxstyle.data.datasets import ClipSpec, load_clip
+from jaxstyle.data.datasets import ClipSpec, load_clip, style_rows
 from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.labels.contacts import estimate_units_per_meter
@@ -29,8 +31,7 @@ from jaxstyle.mason2022 import pipeline
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
-from jaxstyle.output import lpn_synthesis, metrics
-from jaxstyle.output.synthesis import style_rows
+from jaxstyle.output import metrics
 
 
 @pytest.fixture(scope="module")
@@ -164,7 +165,8 @@ def test_pfnn_backbone_is_evaluated_at_the_carried_global_phase(walk):
     controls = [loop.signal_controls(s) for s in (paths.straight(0.5, 1.0, units_per_meter=100.0),
                                                   paths.circle(0.5, 1.0, 1.5, units_per_meter=100.0),
                                                   paths.zigzag(0.5, 1.2, units_per_meter=100.0))]
-    one = lpn_controller.rollout(params, config, styles[0], x_norm, y_norm, states[0], controls[0])
+    model = StyleNetModel.create(params, config, (x_norm, y_norm))
+    one = rollout(model, styles[0], states[0], controls[0])
     st = states[0]
     row0 = loop.steer(st.hist_xz[-1], tuple(r[0] for r in controls[0]))
     x0 = jnp.concatenate([loop.trajectory_input(st.hist_xz, st.hist_yaw, st.future, row0), st.joints])
@@ -185,17 +187,16 @@ def test_pfnn_backbone_is_evaluated_at_the_carried_global_phase(walk):
     np.testing.assert_allclose(adv, 0.8 * np.maximum(omega, 0.0), atol=1e-5)
     np.testing.assert_allclose(adv, 0.8 * 0.01, rtol=0.05)  # it advances at the ratio times the local advance
     stack = lambda items: jax.tree.map(lambda *v: jnp.stack([jnp.asarray(a) for a in v]), *items)  # noqa: E731
-    many = lpn_controller.rollout_batch(params, config, styles, x_norm, y_norm, stack(states), stack(controls))
+    many = rollout_batch(model, styles, stack(states), stack(controls))
     scale = np.abs(np.asarray(many.positions)).max()
     for c in (0, 2):
-        single = one if c == 0 else lpn_controller.rollout(params, config, styles[c], x_norm, y_norm, states[c],
-                                                           controls[c])
+        single = one if c == 0 else rollout(model, styles[c], states[c], controls[c])
         np.testing.assert_allclose(np.asarray(many.positions[c, :5]), np.asarray(single.positions[:5]),
                                    atol=1e-5 * scale)
         np.testing.assert_allclose(np.asarray(many.positions[c]), np.asarray(single.positions), atol=2e-3 * scale)
         np.testing.assert_allclose(np.asarray(many.global_phase[c]), np.asarray(single.global_phase), atol=1e-3)
     # the live step (one frame, weights compiled in) makes the same first frame
-    live = lpn_controller.step_fn(params, config, styles[0], x_norm, y_norm, num_bones)
+    live = step_fn(model, styles[0])
     _, f0 = live(states[0], tuple(r[0] for r in controls[0]))
     np.testing.assert_allclose(float(f0.global_phase), float(one.global_phase[0]), atol=1e-6)
 
@@ -233,7 +234,7 @@ def _neutral(loaded):
     (char,) = synthesis2022.characters(loaded, styles=["Neutral"])
     upm = estimate_units_per_meter(data.skeleton)
     rows = style_rows(ds, "Neutral")
-    speed = lpn_synthesis.own_speed(ds, rows, upm)
+    speed = StyleNetModel.own_speed(ds, rows, upm)
     return model, ds, char, upm, rows, speed, loop.start_row(ds.inputs, speed, units_per_meter=upm, rows=rows)
 
 
@@ -245,11 +246,12 @@ def test_trained_pfnn_backbone_keeps_its_phase_near_the_data_rate(loaded):
     docs/mason2022.md at 0.8-1.05)."""
     model, ds, char, upm, rows, speed, row = _neutral(loaded)
     x_norm, y_norm = ds.normalisers()
-    num_bones = (ds.inputs.shape[1] - 48) // 12
-    ratio = lpn_controller.phase_ratio(model.params, model.config, char.runtime, x_norm, y_norm, ds, rows)
-    state = lpn_synthesis.start_state(ds, row, num_bones, ratio)
-    out = lpn_controller.rollout(model.params, model.config, char.runtime, x_norm, y_norm, state,
-                                 loop.signal_controls(paths.straight(4.0, speed, units_per_meter=upm)))
+    ratio = lpn_controller.phase_ratio(model.params, model.config, char.conditioning, x_norm, y_norm, ds, rows)
+    character = loaded.character_model()
+    state = character.initial_state(ds, row, char.conditioning)
+    assert float(state.phase_ratio) == pytest.approx(ratio, rel=1e-6)  # the character's start fits the same rate
+    out = rollout(character, char.conditioning, state,
+                  loop.signal_controls(paths.straight(4.0, speed, units_per_meter=upm)))
     phi = np.concatenate([[float(state.global_phase)], np.asarray(out.global_phase)])
     assert np.all((phi >= 0) & (phi < 1))
     adv = np.mod(np.diff(phi), 1.0)
@@ -266,19 +268,17 @@ def test_stop_and_go_stops_within_half_a_second_and_walks_again(loaded):
     stop command (the standing amount of the controls), walking again after it; without the
     standing amount the same model does not stop."""
     model, ds, char, upm, rows, speed, row = _neutral(loaded)
-    x_norm, y_norm = ds.normalisers()
-    num_bones = (ds.inputs.shape[1] - 48) // 12
-    state = lpn_synthesis.start_state(ds, row, num_bones)
+    character = loaded.character_model()
+    state = character.initial_state(ds, row)
     sig = paths.stop_and_go(6.0, speed, units_per_meter=upm)
     full = loop.signal_controls(sig)
-    out = lpn_controller.rollout(model.params, model.config, char.runtime, x_norm, y_norm, state, full)
+    out = rollout(character, char.conditioning, state, full)
     origin = np.asarray(out.origin)
     stops = metrics.stop_times(origin, sig.velocity, 60.0, units_per_meter=upm)
     assert len(stops) == 2 and np.all(stops <= 0.5), stops
     v = metrics.ground_speed(origin, 60.0, units_per_meter=upm)
     assert v[int(3.5 * 60):int(4.5 * 60)].mean() > 0.5 * speed  # it walks again
-    free = lpn_controller.rollout(model.params, model.config, char.runtime, x_norm, y_norm, state,
-                                  loop.Controls(*full[:4]))
+    free = rollout(character, char.conditioning, state, loop.Controls(*full[:4]))
     late = metrics.stop_times(np.asarray(free.origin), sig.velocity, 60.0, units_per_meter=upm)
     assert not np.all(late <= 0.5), late
 

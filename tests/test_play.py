@@ -19,8 +19,12 @@ import jax
 import numpy as np
 import pytest
 
-from jaxstyle.control import controller, loop, lpn_controller
+from jaxstyle.control import loop, lpn_controller
+from jaxstyle.control.controller import PFNNModel
+from jaxstyle.control.lpn_controller import StyleNetModel
+from jaxstyle.control.model import step_fn
 from jaxstyle.data import folders, procedural
+from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.labels.contacts import estimate_units_per_meter
@@ -29,7 +33,6 @@ from jaxstyle.mason2022 import pipeline as pipeline2022
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.motion.bvh import read_bvh
 from jaxstyle.nn import film_generator, pfnn, style_models
-from jaxstyle.output import synthesis
 from jaxstyle.play import learn, session
 from jaxstyle.play.frame import Steering, control_row, control_rows
 from jaxstyle.play.server import bone_transforms, ground_point
@@ -58,7 +61,7 @@ def tiny_model(folder: Path, styles=STYLES, seconds: float = 6.0, hidden: int = 
     named = {s: session.Style(s, "base", None, jax.tree.map(lambda v, i=i: v[i], adapters))
              for i, s in enumerate(dataset.styles)}
     upm = estimate_units_per_meter(skeleton)
-    speed = synthesis.own_speed(dataset, synthesis.style_rows(dataset, dataset.styles[0]), upm)
+    speed = PFNNModel.own_speed(dataset, style_rows(dataset, dataset.styles[0]), upm)
     return session.PlayModel(base, named, upm, speed, Path(folder))
 
 
@@ -127,12 +130,12 @@ def test_direction_steering_and_keys():
 # --- the live step -----------------------------------------------------------------------------
 
 def test_batched_step_matches_step_fn_per_character(model):
-    """The session's one jitted call for all characters == ``controller.step_fn`` per character
+    """The session's one jitted call for all characters == ``step_fn`` per character
     (feet as the network put them; the locked feet are the next test's)."""
     s = session.Session(model, style="Neutral", foot_lock=False)
     s.add_character("Crouched")
     s.walk_to(2.0, 4.0)
-    single = controller.step_fn(model.base.params, None, *model.base.normalisers, s.num_joints)
+    single = step_fn(PFNNModel.create(model.base.params, model.base.normalisers, s.num_joints), None)
     states = [jax.tree.map(lambda v, i=i: v[i], s._states) for i in range(2)]
     adapters = [s.adapter_of(c) for c in s.characters]
     for _ in range(5):
@@ -189,7 +192,7 @@ def test_style_switch_and_blend_take_effect_without_recompiling(model):
     h = jax.random.normal(jax.random.PRNGKey(3), (5, model.base.model.hidden_size))
     w4 = pfnn.catmull_rom_weights(jax.numpy.linspace(0, 0.9, 5))
     blended = pfnn.apply_adapter(s.adapter_of(s.characters[0]), h, w4)
-    want = sum(wk * pfnn.apply_adapter(model.styles[n].adapter, h, w4) for n, wk in (("Neutral", 0.75),
+    want = sum(wk * pfnn.apply_adapter(model.styles[n].conditioning, h, w4) for n, wk in (("Neutral", 0.75),
                                                                                        ("Crouched", 0.25)))
     np.testing.assert_allclose(blended, want, rtol=1e-4, atol=1e-5)
     with pytest.raises(PlayError, match="unknown style"):
@@ -437,30 +440,29 @@ def test_lpn_styles_are_the_film_vectors_of_the_training_and_finetuned_styles(lp
     assert {n: (st.kind, st.rate) for n, st in lpn_model.styles.items()} == {
         "Crouched": ("base", None), "Neutral": ("base", None), "Limping": ("fine-tuned", 0.5)}
     for name in ("Crouched", "Neutral"):
-        np.testing.assert_allclose(lpn_model.styles[name].runtime,
+        np.testing.assert_allclose(lpn_model.styles[name].conditioning,
                                    _film_vector(lpn_model, m.params["style"]["generator"], m.data, name),
                                    rtol=1e-5, atol=1e-6)
     # the new style: under its chosen rate's generator (index 1: the model's minus 0.02)
     new = pipeline2022.train_lpn.style_data(lpn_model.loaded.data.new, lpn_model.skeleton,
                                             base=lpn_model.loaded.data.base)
     tuned = jax.tree.map(lambda v: np.asarray(v) - 0.02, m.params["style"]["generator"])
-    np.testing.assert_allclose(lpn_model.styles["Limping"].runtime, _film_vector(lpn_model, tuned, new, "Limping"),
+    np.testing.assert_allclose(lpn_model.styles["Limping"].conditioning, _film_vector(lpn_model, tuned, new, "Limping"),
                                rtol=1e-4, atol=1e-5)
     assert lpn_model.styles["Limping"].label == "Limping (fine-tuned, rate 0.5)"
 
 
 def test_lpn_session_steps_like_the_controllers_step_and_switches_styles_without_recompiling(lpn_model):
-    """The session's one jitted call for all characters == ``lpn_controller.step_fn`` per character
+    """The session's one jitted call for all characters == ``step_fn`` per character
     with each character's FiLM vector; a switch feeds the new vector to the next step, compiling
     nothing (the jit cache stays at one entry per character count)."""
     m = lpn_model.loaded.model
     s = session.Session(lpn_model, style="Neutral", foot_lock=False)
     s.add_character("Crouched")
     s.walk_to(2.0, 4.0)
-    x_norm, y_norm = lpn_model.loaded.data.base.normalisers()
-    single = lpn_controller.step_fn(m.params, m.config, None, x_norm, y_norm, lpn_model.num_bones)
+    single = step_fn(StyleNetModel.create(m.params, m.config, lpn_model.loaded.data.base.normalisers()), None)
     states = [jax.tree.map(lambda v, i=i: v[i], s._states) for i in range(2)]
-    vectors = {n: np.asarray(st.runtime) for n, st in lpn_model.styles.items()}
+    vectors = {n: np.asarray(st.conditioning) for n, st in lpn_model.styles.items()}
     compiled = None
     for k in range(6):
         if k == 3:
@@ -490,13 +492,13 @@ def test_lpn_film_blend_is_the_weighted_film_vector(lpn_model):
     compiled = s._step._cache_size()
     s.set_blend(["Neutral", "Crouched", "Limping"], [1.0, 2.0, 5.0])
     w = np.array([1.0, 2.0, 5.0]) / 8.0
-    want = sum(wk * np.asarray(lpn_model.styles[n].runtime, np.float64)
+    want = sum(wk * np.asarray(lpn_model.styles[n].conditioning, np.float64)
                for wk, n in zip(w, ("Neutral", "Crouched", "Limping"), strict=True))
     np.testing.assert_allclose(np.asarray(s.runtime_of(s.characters[0])), want, rtol=1e-5, atol=1e-7)
     assert s.describe()[0] == "12% Neutral + 25% Crouched + 62% Limping"
     s.step()
     s.set_style("Crouched")
-    np.testing.assert_array_equal(np.asarray(s.runtime_of(s.characters[0])), lpn_model.styles["Crouched"].runtime)
+    np.testing.assert_array_equal(np.asarray(s.runtime_of(s.characters[0])), lpn_model.styles["Crouched"].conditioning)
     s.step()
     assert s._step._cache_size() == compiled
 
@@ -546,9 +548,9 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
 
     def ratio(runtime, name):
         return lpn_controller.phase_ratio(model.params, config, runtime, x_norm, y_norm, data.base,
-                                          synthesis.style_rows(data.base, name))
+                                          style_rows(data.base, name))
 
-    want = {n: ratio(m.styles[n].runtime, n) for n in ("Neutral", "Crouched")}
+    want = {n: ratio(m.styles[n].conditioning, n) for n in ("Neutral", "Crouched")}
     assert want["Neutral"] != want["Crouched"]
     s = session.Session(m, style="Neutral")
     s.add_character("Crouched")
@@ -558,11 +560,11 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
     np.testing.assert_allclose(s._states.phase_ratio, [want["Neutral"], want["Crouched"]], rtol=1e-6)
     s.set_style("Crouched", 0)
     s.set_blend(["Neutral", "Crouched"], [1.0, 3.0], 1)
-    single = lpn_controller.step_fn(model.params, config, None, x_norm, y_norm, m.num_bones)
+    single = step_fn(StyleNetModel.create(model.params, config, (x_norm, y_norm)), None)
     controls = s.controls()
     before = jax.tree.map(lambda v: v[1], s._states)
     frame = s.step()
-    blend = 0.25 * np.asarray(m.styles["Neutral"].runtime) + 0.75 * np.asarray(m.styles["Crouched"].runtime)
+    blend = 0.25 * np.asarray(m.styles["Neutral"].conditioning) + 0.75 * np.asarray(m.styles["Crouched"].conditioning)
     np.testing.assert_allclose(s._states.phase_ratio, [want["Crouched"], ratio(blend, "Crouched")], rtol=1e-5)
     # character 1's step, at the blend's rate, against step_fn with the blended FiLM vector
     state = before._replace(phase_ratio=jax.numpy.float32(ratio(blend, "Crouched")))

@@ -1,4 +1,5 @@
-"""The quality benchmark on the 2022 controller (:func:`jaxstyle.output.quality.run_lpn`) and the
+"""The quality benchmark on the 2022 controller (:func:`jaxstyle.output.quality.run` with a
+:class:`jaxstyle.control.lpn_controller.StyleNetModel`) and the
 demo's quality table: a tiny LPN-FiLM trained in a fixture on two
 procedural styles is measured along the protocol's paths, and every figure is recomputed
 independently from what ``jaxstyle synthesize --model lpn-film`` writes for the same characters
@@ -53,8 +54,7 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
     chars = synthesis2022.characters(loaded, styles=["Neutral", "Crouched"])  # the demo test's shapes: one compile
     subjects = [quality.subject(c, "base", model.name) for c in chars]
     names = quality.TARGET_PATHS
-    rows, drawn = quality.run_lpn(model.params, model.config, loaded.data.base.normalisers(), subjects, skeleton,
-                                  path_names=names, seconds=SECONDS)
+    rows, drawn = quality.run(loaded.character_model(), subjects, skeleton, path_names=names, seconds=SECONDS)
     assert [(r["model"], r["style"], r["path"]) for r in rows] == [
         ("LPN FiLM", s, p) for s in ("Neutral", "Crouched") for p in names] + [
         ("LPN FiLM", s, "capture") for s in ("Neutral", "Crouched")]
@@ -151,7 +151,7 @@ def test_demo_prints_the_benchmark_table_with_target_marks(loaded, tmp_path):
                        and line.endswith(f"| {mark} |") for line in lock_marks)
     marks = [line for line in marks if line not in lock_marks]
     assert len(marks) == 2 * 4  # 2 styles x (3 path-error targets + 1 stop)
-    for r in rows:  # each mark agrees with the CSV's figure and the issue's limits
+    for r in rows:  # each mark agrees with the CSV's figure and the targets' limits
         if r["path"] in quality.FOLLOW_PATHS:
             value, limit = float(r["path_error_final_m"]), 0.3
         elif r["path"] == "stop_and_go":

@@ -1,5 +1,6 @@
-"""The package's structure: the layer contract (import-linter) holds and catches an upward import, and
-``import jaxstyle`` stays light while every public name resolves."""
+"""The package's structure: the layer contracts (import-linter: the packages, and the modules inside
+``cli``, ``output``, ``play`` and ``control``) hold and catch an upward import, the import graph has no
+cycle, and ``import jaxstyle`` stays light while every public name resolves."""
 
 from __future__ import annotations
 
@@ -33,13 +34,17 @@ def test_layers_contract_is_kept(tree_copy):
     assert LINT, "lint-imports (import-linter) is a test dependency"
     result = _lint(tree_copy)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "1 kept, 0 broken" in result.stdout
+    assert "5 kept, 0 broken" in result.stdout
 
 
 @pytest.mark.parametrize("module, upward", [
     ("motion/clip.py", "from jaxstyle.output import metrics"),
     ("nn/pfnn.py", "from jaxstyle.control import controller"),
     ("mason2022/train.py", "from jaxstyle.mason2018 import fewshot"),
+    ("cli/play.py", "from jaxstyle.cli.main import build_parser"),
+    ("output/quality.py", "from jaxstyle.output import synthesis"),
+    ("play/session.py", "from jaxstyle.play import learn"),
+    ("control/controller.py", "from jaxstyle.control import model"),
 ])
 def test_an_upward_import_breaks_the_contract(tree_copy, tmp_path, module, upward):
     tree = tmp_path / "t"
@@ -49,6 +54,61 @@ def test_an_upward_import_breaks_the_contract(tree_copy, tmp_path, module, upwar
     result = _lint(tree)
     assert result.returncode != 0
     assert "BROKEN" in result.stdout
+
+
+def _cycles(imports: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan's algorithm, iterative)."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+    for root in sorted(imports):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(imports[root])))]
+        index[root] = low[root] = counter[0]
+        counter[0] += 1
+        stack.append(root)
+        on.add(root)
+        while work:
+            v, children = work[-1]
+            w = next(children, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = counter[0]
+                    counter[0] += 1
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(imports.get(w, ())))))
+                elif w in on:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    w = stack.pop()
+                    on.discard(w)
+                    comp.append(w)
+                    if w == v:
+                        break
+                if len(comp) > 1:
+                    out.append(sorted(comp))
+    return out
+
+
+def test_cycle_finder_finds_a_planted_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []
+
+
+def test_the_import_graph_has_no_cycle():
+    """No module imports, directly or through others (imports inside functions included), a module
+    that imports it back (grimp's graph, the one import-linter checks)."""
+    import grimp
+
+    graph = grimp.build_graph("jaxstyle")
+    imports = {m: set(graph.find_modules_directly_imported_by(m)) for m in graph.modules}
+    assert _cycles(imports) == []
 
 
 def test_import_jaxstyle_loads_no_jax_or_plotting_and_every_public_name_resolves():

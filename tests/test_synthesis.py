@@ -10,9 +10,12 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle.control import controller, lpn_controller, paths
+from jaxstyle.control import controller, loop, lpn_controller, paths
+from jaxstyle.control.controller import PFNNModel
+from jaxstyle.control.lpn_controller import StyleNetModel
+from jaxstyle.control.model import rollout, rollout_batch, step_fn
 from jaxstyle.data.datasets import ClipSpec, load_clip
-from jaxstyle.data.lpn_features import bone_points, end_effector_columns
+from jaxstyle.data.lpn_features import bone_points
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.motion import kinematics
 from jaxstyle.motion.character_frame import CharacterFrames, rotate_yaw, to_local
@@ -78,7 +81,7 @@ def test_waypoints_walk_the_polyline_then_stop():
 
 def test_signal_controls_match_the_integrated_positions():
     sig = paths.zigzag(3.0, 1.3, units_per_meter=100.0)
-    c = controller.signal_controls(sig)
+    c = loop.signal_controls(sig)
     # offset k of frame t is the ideal displacement from frame t to t + 10 k (positions[t - 1] is
     # where frame t stands; frame 0 stands at the origin)
     before = np.concatenate([np.zeros((1, 2)), sig.positions])
@@ -161,7 +164,7 @@ def _real_controls(frames, t, n):
     t0 = t[0]
     idx = t[:n][:, None] + 10 * np.arange(6)[None]
     disp = rotate_yaw(frames.origin[idx] - frames.origin[t[:n]][:, None], np.full(idx.shape, -frames.yaw[t0]))
-    return controller.Controls(jnp.asarray(disp[..., [0, 2]], jnp.float32),
+    return loop.Controls(jnp.asarray(disp[..., [0, 2]], jnp.float32),
                                jnp.asarray(frames.yaw[idx] - frames.yaw[t0], jnp.float32))
 
 
@@ -181,11 +184,11 @@ def test_lpn_teacher_forced_loop_reproduces_the_encoded_inputs(lpn_clip):
     all_pos = np.concatenate([g_pos, kinematics.end_site_positions(m, g_rot, g_pos)], axis=1)[:, points]
     step = jax.jit(lambda s, yi: lpn_controller.advance(s, yi, num_bones))
     for i in range(n):
-        built = np.concatenate([np.asarray(controller.trajectory_input(
+        built = np.concatenate([np.asarray(loop.trajectory_input(
             state.hist_xz, state.hist_yaw, state.future, (controls.offsets[i], controls.yaw[i]))),
             np.asarray(state.joints)])
         scale = np.abs(x[i]).max()
-        if i >= controller.HISTORY - 1:
+        if i >= loop.HISTORY - 1:
             np.testing.assert_allclose(built, x[i], atol=1e-3 * scale)
         else:
             np.testing.assert_allclose(built[24:], x[i][24:], atol=1e-3 * scale)
@@ -214,25 +217,26 @@ def test_lpn_batch_equals_single_rollouts_and_decodes(lpn_clip):
     signals = [paths.straight(0.5, 1.0, units_per_meter=100.0), paths.circle(0.5, 1.0, 1.5, units_per_meter=100.0),
                paths.zigzag(0.5, 1.2, units_per_meter=100.0)]
     # gain 1: the untrained network's closed loop amplifies rounding, the more the higher the gain
-    controls = [controller.signal_controls(s, follow_gain=1.0) for s in signals]
+    controls = [loop.signal_controls(s, follow_gain=1.0) for s in signals]
     states = [lpn_controller.initial_state(x[i], p[i], num_bones) for i in (0, 50, 100)]
     # gamma near 0.3, beta near 0: FiLM damps the untrained network, so its closed loop does not
     # amplify float32 rounding (with gamma near 1 batched and single rollouts part after ~18 frames)
     styles = jax.random.normal(jax.random.PRNGKey(3), (3, 64)) * 0.1 + jnp.tile(
         jnp.concatenate([0.3 * jnp.ones(16), jnp.zeros(16)]), 2)
     stack = lambda items: jax.tree.map(lambda *v: jnp.stack(v), *items)  # noqa: E731
-    many = lpn_controller.rollout_batch(params, config, styles, x_norm, y_norm, stack(states), stack(controls))
+    model = StyleNetModel.create(params, config, (x_norm, y_norm))
+    many = rollout_batch(model, styles, stack(states), stack(controls))
     assert many.positions.shape == (3, 30, num_bones, 3)
     assert np.isfinite(np.asarray(many.outputs)).all()
     # an untrained network in a closed loop amplifies float32 rounding (batched products sum in
     # another order), so the first frames must agree to rounding and the rest to 0.2% of the scale
     scale = np.abs(np.asarray(many.positions)).max()
     for c in (0, 2):
-        one = lpn_controller.rollout(params, config, styles[c], x_norm, y_norm, states[c], controls[c])
+        one = rollout(model, styles[c], states[c], controls[c])
         np.testing.assert_allclose(np.asarray(many.positions[c, :5]), np.asarray(one.positions[:5]), atol=1e-5 * scale)
         np.testing.assert_allclose(np.asarray(many.positions[c]), np.asarray(one.positions), atol=2e-3 * scale)
     # the live step (weights compiled in, style an argument) makes the same first frames
-    step = lpn_controller.step_fn(params, config, styles[0], x_norm, y_norm, num_bones)
+    step = step_fn(model, styles[0])
     s0, f0 = step(states[2], (controls[2].offsets[0], controls[2].yaw[0]), styles[2])
     _, f1 = step(s0, (controls[2].offsets[1], controls[2].yaw[1]), styles[2])
     np.testing.assert_allclose(np.asarray(f1.positions), np.asarray(one.positions[1]), atol=1e-4 * scale)
@@ -242,11 +246,10 @@ def test_lpn_batch_equals_single_rollouts_and_decodes(lpn_clip):
                                atol=1e-3 * np.abs(np.asarray(one.positions)).max())
     # the MANN backbone gates on end-effector columns, and says so when they are missing
     mcfg, mparams, _, _ = _small_lpn(x, y, backbone="mann")
-    out = lpn_controller.rollout(mparams, mcfg, styles[0], x_norm, y_norm, states[0], controls[0],
-                                 gate_columns=end_effector_columns(m))
+    out = rollout(StyleNetModel.create(mparams, mcfg, (x_norm, y_norm), m), styles[0], states[0], controls[0])
     assert np.isfinite(np.asarray(out.positions)).all()
     with pytest.raises(ValueError, match="gate_columns"):
-        lpn_controller.rollout(mparams, mcfg, styles[0], x_norm, y_norm, states[0], controls[0])
+        StyleNetModel.create(mparams, mcfg, (x_norm, y_norm))
     with pytest.raises(ValueError, match="shape"):
         lpn_controller.initial_state(x[0][:-1], p[0], num_bones)
 
@@ -263,17 +266,17 @@ def test_pfnn_table_rollout_matches_the_continuous_phase(mocap):
     x_norm = Normaliser(x.mean(0), x.std(0) + 1e-3)
     y_norm = Normaliser(y.mean(0), y.std(0) + 1e-3)
     state = controller.initial_state(x[0], phase[t[0]], m.num_joints)
-    c = controller.signal_controls(paths.straight(0.2, 1.0, units_per_meter=100.0))
-    cont = controller.rollout(params, adapter, x_norm, y_norm, state, c)
-    tab = controller.rollout(pfnn.discretise(params), pfnn.discretise(adapter), x_norm, y_norm, state, c, table=True)
+    c = loop.signal_controls(paths.straight(0.2, 1.0, units_per_meter=100.0))
+    tabled = PFNNModel.create(pfnn.discretise(params), (x_norm, y_norm), m.num_joints, table=True)
+    cont = rollout(PFNNModel.create(params, (x_norm, y_norm), m.num_joints), adapter, state, c)
+    tab = rollout(tabled, pfnn.discretise(adapter), state, c)
     # the same frames, to within the table's phase resolution over a dozen frames of feedback
     err = np.abs(np.asarray(cont.positions) - np.asarray(tab.positions)).max(axis=(1, 2))
     scale = np.abs(np.asarray(cont.positions)).max()
     assert err[0] < 0.02 * scale
     assert np.isfinite(np.asarray(tab.positions)).all()
     # the live step of the table runtime makes the rollout's first frame
-    step = controller.step_fn(pfnn.discretise(params), pfnn.discretise(adapter), x_norm, y_norm, m.num_joints,
-                              table=True)
+    step = step_fn(tabled, pfnn.discretise(adapter))
     _, frame = step(state, (c.offsets[0], c.yaw[0]))
     np.testing.assert_allclose(np.asarray(frame.positions), np.asarray(tab.positions[0]), atol=1e-4 * scale)
 
@@ -309,13 +312,13 @@ def test_four_characters_follow_their_paths(trained_pfnn, tmp_path):
     speed = 1.0
     signals = [paths.straight(5.0, speed, units_per_meter=upm), paths.circle(5.0, speed, 2.5, units_per_meter=upm),
                paths.zigzag(5.0, speed, units_per_meter=upm), paths.stop_and_go(5.0, speed, units_per_meter=upm)]
-    row = controller.start_row(dataset.inputs, speed, units_per_meter=upm,
+    row = loop.start_row(dataset.inputs, speed, units_per_meter=upm,
                                rows=dataset.rows_of_style("Neutral", "train"))
     state = controller.initial_state(dataset.inputs[row], float(dataset.phases[row, 0]), skeleton.num_joints)
     stack = lambda items: jax.tree.map(lambda *v: jnp.stack(v), *items)  # noqa: E731
-    x_norm, y_norm = dataset.normalisers()
-    out = controller.rollout_batch(params, None, x_norm, y_norm, stack([state] * 4),
-                                   stack([controller.signal_controls(s) for s in signals]))
+    model = PFNNModel.create(params, dataset.normalisers(), skeleton.num_joints)
+    out = rollout_batch(model, None, stack([state] * 4), stack([loop.signal_controls(s) for s in signals]),
+                        shared_style=True)
     assert out.positions.shape == (4, 300, skeleton.num_joints, 3)
     assert np.isfinite(np.asarray(out.outputs)).all()
     for c in range(len(signals)):

@@ -1,5 +1,6 @@
 """Characters from a trained 2022 model (:mod:`jaxstyle.mason2022.synthesis`,
-:mod:`jaxstyle.output.lpn_synthesis`, ``jaxstyle synthesize --model lpn-film``): a tiny LPN-FiLM
+:mod:`jaxstyle.output.synthesis` with the model's :class:`jaxstyle.control.lpn_controller.StyleNetModel`,
+``jaxstyle synthesize --model lpn-film``): a tiny LPN-FiLM
 trained in a fixture is reloaded from its run folder, drives characters along paths through the
 library and the command line, and blends 2 and 3 styles."""
 
@@ -17,7 +18,8 @@ from jaxstyle.data import folders, procedural
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2022 import pipeline
 from jaxstyle.mason2022 import synthesis as synthesis2022
-from jaxstyle.output import lpn_synthesis, metrics
+from jaxstyle.output import metrics
+from jaxstyle.output.drive import blend_character
 from jaxstyle.output.synthesis import quality_table
 
 
@@ -73,12 +75,12 @@ def test_characters_use_the_style_film_vectors_and_the_finetuned_generator(run_d
     _, model, _, result = run_dir
     chars = synthesis2022.characters(loaded, styles=["Neutral"], new_styles=["Limping"])
     s = model.data.styles.index("Neutral")
-    np.testing.assert_allclose(chars[0].runtime, pipeline.train_lpn.film_vectors(model.params, model.data)[s],
+    np.testing.assert_allclose(chars[0].conditioning, pipeline.train_lpn.film_vectors(model.params, model.data)[s],
                                rtol=1e-6)
     # the new style: the mean FiLM vector of its training clips under its fine-tuned generator
     tuned = result.params(model, "Limping")
     vec = pipeline.film.clip_films(tuned["style"]["generator"], result.data.clips[result.data.train_clips[0]])
-    np.testing.assert_allclose(chars[1].runtime, vec.mean(axis=0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(chars[1].conditioning, vec.mean(axis=0), rtol=1e-5, atol=1e-6)
     assert chars[1].title.startswith("Limping (fine-tuned, rate ")
     with pytest.raises(folders.PipelineError, match="unknown style 'Nope'"):
         synthesis2022.characters(loaded, styles=["Nope"])
@@ -86,26 +88,25 @@ def test_characters_use_the_style_film_vectors_and_the_finetuned_generator(run_d
 
 def test_film_blends_are_the_weighted_sum_of_film_vectors(loaded):
     a, b, c = synthesis2022.characters(loaded, styles=["Neutral", "Crouched"], new_styles=["Limping"])
-    config = loaded.model.config
-    one = lpn_synthesis.blend_character(config, [a, b, c], [1.0, 0.0, 0.0])
-    np.testing.assert_array_equal(np.asarray(one.runtime), np.asarray(a.runtime))  # exactly the single style
+    model = loaded.character_model()
+    one = blend_character(model, [a, b, c], [1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(np.asarray(one.conditioning), np.asarray(a.conditioning))  # exactly the single style
     w = [0.2, 0.3, 0.5]
-    mix = lpn_synthesis.blend_character(config, [a, b, c], w)
-    ref = sum(wi * np.asarray(x.runtime, np.float64) for wi, x in zip(w, (a, b, c), strict=True))
-    np.testing.assert_allclose(np.asarray(mix.runtime), ref, rtol=1e-5, atol=1e-6)
+    mix = blend_character(model, [a, b, c], w)
+    ref = sum(wi * np.asarray(x.conditioning, np.float64) for wi, x in zip(w, (a, b, c), strict=True))
+    np.testing.assert_allclose(np.asarray(mix.conditioning), ref, rtol=1e-5, atol=1e-6)
     assert mix.title == "20% Neutral + 30% Crouched + 50% Limping" and mix.dataset is a.dataset
     with pytest.raises(ValueError, match="barycentric"):
-        lpn_synthesis.blend_character(config, [a, b], [0.7, 0.7])
+        blend_character(model, [a, b], [0.7, 0.7])
     with pytest.raises(ValueError, match="2 or 3 styles"):
-        lpn_synthesis.blend_character(config, [a], [1.0])
+        blend_character(model, [a], [1.0])
 
 
 def test_synthesize_drives_characters_and_blends_with_the_2018_metrics(loaded, tmp_path):
     a, b, c = synthesis2022.characters(loaded, styles=["Neutral", "Crouched"], new_styles=["Limping"])
-    config = loaded.model.config
+    model = loaded.character_model()
     # 4 characters on one 1 s path: the shapes of the command-line test below (one compiled rollout)
-    chars = [a, b, lpn_synthesis.blend_character(config, [a, b, c], [1.0, 0.0, 0.0]),
-             lpn_synthesis.blend_character(config, [a, b], [0.5, 0.5])]
+    chars = [a, b, blend_character(model, [a, b, c], [1.0, 0.0, 0.0]), blend_character(model, [a, b], [0.5, 0.5])]
     out = synthesis2022.synthesize(loaded, chars, tmp_path, paths=["straight"], seconds=1.0, foot_lock=True,
                                    gif=False, progress=False)
     assert out.frames == 4 * 60 and len(out.rows) == 4 + 2  # + a real clip per style

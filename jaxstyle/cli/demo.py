@@ -46,7 +46,7 @@ One command from nothing to a stylised animation (Mason et al. 2018 end to end):
    stop_and_go, --synth-seconds each, at each style's own speed): the table of
    experiments/quality.py (jaxstyle.output.quality: skating of the network's joints, of the
    exported BVH and after contact IK, bone error, path error, heading, time to stop, jitter,
-   beside each style's capture) and the issue's path and stop targets (final path error <= 0.3 m
+   beside each style's capture) and the benchmark's path and stop targets (final path error <= 0.3 m
    on straight, circle and zigzag; stopped within 0.5 s) marked pass or FAIL
    (RUN/synthesis/quality_targets.csv; --no-quality skips it).
 
@@ -135,8 +135,8 @@ def _data_root(args, run: Run) -> Path:
 
 
 def report_quality(run: Run, args, measure, out: Path) -> Path:
-    """Step 5: ``measure(path_names, seconds)`` (:func:`jaxstyle.output.quality.run` or
-    :func:`~jaxstyle.output.quality.run_lpn` on the demo's characters) along the benchmark's target
+    """Step 5: ``measure(path_names, seconds)`` (:func:`jaxstyle.output.quality.run` on the demo's
+    characters of either model) along the benchmark's target
     paths; print the benchmark's table (:func:`jaxstyle.output.quality.table`, as
     ``experiments/quality.py`` prints it), the foot-locking targets and the path and stop targets
     with pass/FAIL marks (:func:`jaxstyle.output.quality.target_marks`); write the rows to ``out`` (CSV)."""
@@ -261,7 +261,7 @@ def pfnn_quality(base, sweep_dir: Path, shots, chosen: dict, base_styles: Sequen
 
     chars = pipeline.characters(base, sweep_dir, shots, chosen, base_styles=base_styles, fewshot_sets=sets)
     subjects = [quality.subject(c, "base" if i < len(base_styles) else "few-shot") for i, c in enumerate(chars)]
-    return quality.run(base.params, base.normalisers, subjects, base.skeleton, path_names=path_names, seconds=seconds)
+    return quality.run(base.character_model(), subjects, base.skeleton, path_names=path_names, seconds=seconds)
 
 
 def lpn_quality(loaded, base_styles: Sequence[str], sets: Sequence[str], path_names: Sequence[str], seconds: float):

@@ -74,14 +74,15 @@ def add_arguments(p) -> None:
 
 
 def _run_demo(run: Run, args) -> None:
-    """``jaxstyle demo`` into the run folder, with its default settings."""
+    """``jaxstyle demo`` into the run folder, with its default settings (its own arguments, parsed
+    by a parser of ``jaxstyle demo`` alone)."""
     from jaxstyle.cli import demo
-    from jaxstyle.cli.common import resolve_defaults
-    from jaxstyle.cli.main import build_parser
+    from jaxstyle.cli.common import Parser, resolve_defaults
 
-    parser, _ = build_parser()
+    parser = Parser(prog="jaxstyle demo")
+    demo.add_arguments(parser)
     model = ["--model", args.model] if args.model and args.model != "pfnn" else []
-    demo_args = parser.parse_args(["demo", "--run", str(run.dir)] + model + (["--quiet"] if args.quiet else []))
+    demo_args = parser.parse_args(["--run", str(run.dir)] + model + (["--quiet"] if args.quiet else []))
     resolve_defaults(demo_args)
     demo.run(demo_args, run)
 

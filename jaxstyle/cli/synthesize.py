@@ -67,7 +67,7 @@ def synthesize_and_report(run: Run, args, base, shots, chosen, base_styles, sets
                                         base_styles=base_styles, fewshot_sets=sets, blend=blend, paths=args.paths,
                                         seconds=args.synth_seconds, speed=args.speed, foot_lock=args.foot_lock,
                                         mp4=args.mp4, every=args.every, progress=progress(args))
-    run.say(f"synthesis: {pipeline.rollout_summary(result, len(chars), len(args.paths))}; with GIF and BVH writing "
+    run.say(f"synthesis: {result.summary(len(chars), len(args.paths))}; with GIF and BVH writing "
             f"{elapsed(t0)}")
     for line in synthesis.quality_table(result.rows):
         run.say(line)
@@ -95,7 +95,7 @@ def synthesize_lpn_and_report(run: Run, args, loaded, base_styles, sets, out: Pa
                                       speed=args.speed, foot_lock=args.foot_lock, mp4=args.mp4, every=args.every,
                                       progress=progress(args))
     run.say(f"synthesis with {loaded.model.name} ({loaded.epochs} epochs, {loaded.directory}): "
-            f"{synthesis2022.rollout_summary(result, len(chars), len(args.paths))}; with GIF and BVH writing "
+            f"{result.summary(len(chars), len(args.paths))}; with GIF and BVH writing "
             f"{elapsed(t0)}")
     for line in synthesis.quality_table(result.rows):
         run.say(line)

@@ -11,50 +11,37 @@ of :mod:`jaxstyle.data.pfnn_features`:
 * joint positions and velocities: the previous frame's, already in the new character frame. The
   positions are the PFNN demo's blend (Holden et al. 2017's runtime, ``extra_joint_smooth = 0.5``):
   ``p_{t+1} = s P_{t+1} + (1 - s) (p_t + V_{t+1})`` of the predicted position ``P`` and the previous
-  position moved on by the predicted velocity ``V``, ``s =`` :data:`JOINT_SMOOTH`. Where the two
-  predictions disagree the carried pose is their average, which damps the autoregressive loop
-  through the joint inputs: fed its raw predicted positions (``s = 1``), the paper-size base of
-  ``experiments/quality.py`` stood at a waypoint in its Chicken style while its head rose and went
-  30 m behind it within half a second.
+  position moved on by the predicted velocity ``V``, ``s =``
+  :data:`jaxstyle.control.loop.JOINT_SMOOTH`. Where the two predictions disagree the carried pose
+  is their average, which damps the autoregressive loop through the joint inputs: fed its raw
+  predicted positions (``s = 1``), the paper-size base of ``experiments/quality.py`` diverges in
+  its Chicken style when it stands at a waypoint (the head rises and drifts metres behind the body
+  within half a second).
 
 The root then moves by the predicted velocity and turn, the phase advances by the predicted
 (non-negative) change. Everything is in file units; the user's path is given as a ground
-velocity and a facing direction per frame (:func:`path_controls`, :func:`turning_path`), relative
+velocity and a facing direction per frame (:func:`jaxstyle.control.loop.path_controls`), relative
 to where the character stands, so the loop is closed: the user steers, the character follows.
 
-Shapes: one character per call; ``jax.vmap`` over ``state``/``controls``/``adapter`` gives
-many (the base parameters broadcast).
+:class:`PFNNModel` is this step as a :class:`jaxstyle.control.model.CharacterModel` (a character's
+style conditioning is its residual adapter): :func:`jaxstyle.control.model.rollout` drives one
+character, :func:`jaxstyle.control.model.rollout_batch` many (the base parameters broadcast).
 """
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from jaxstyle.control import loop
-from jaxstyle.control.loop import (  # noqa: F401
-    HISTORY,
-    SPACING,
-    Controls,
-    f32,
-    initial_ground,
-    normaliser_arrays,
-    path_controls,
-    rotate_xz,
-    signal_controls,
-    start_row,
-    trajectory_input,
-    turning_path,
-)
+from jaxstyle.control.loop import f32, initial_ground, normaliser_arrays, rotate_xz, trajectory_input
 from jaxstyle.data.normalise import Normaliser
-from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PFNNLayout
+from jaxstyle.data.pfnn_features import FUTURE_SAMPLES, PFNNLayout, decode_pfnn, output_contacts
 from jaxstyle.nn import pfnn
-
-JOINT_SMOOTH = loop.JOINT_SMOOTH  # the weight of the predicted joints (loop.JOINT_SMOOTH, the module docstring)
 
 
 class RolloutState(NamedTuple):
@@ -82,6 +69,21 @@ class Rollout(NamedTuple):
     phase: jax.Array
     outputs: jax.Array
 
+    def decode(self, skeleton):
+        """The :class:`jaxstyle.Motion` of one character's frames on ``skeleton``
+        (:func:`jaxstyle.data.pfnn_features.decode_pfnn` of the outputs)."""
+        return decode_pfnn(np.asarray(self.outputs, dtype=np.float64), skeleton)[0]
+
+    def predicted_contacts(self, num_joints: int) -> np.ndarray | None:
+        """The heel and toe labels ``(T, 4)`` of a PFNN with the 2018 layout's contact outputs
+        (:func:`jaxstyle.data.pfnn_features.output_contacts`), ``None`` for the paper's layout."""
+        return output_contacts(np.asarray(self.outputs), num_joints)
+
+    def arrays(self) -> dict:
+        """What :func:`jaxstyle.output.export.save_rollout` saves: the fields, the phase as ``phase``."""
+        return {"positions": self.positions, "origin": self.origin, "yaw": self.yaw, "outputs": self.outputs,
+                "phase": self.phase}
+
 
 def initial_state(x_row: np.ndarray, phase: float, num_joints: int) -> RolloutState:
     """The loop's start from one (de-normalised) PFNN input row, e.g. a frame of real data: the
@@ -99,12 +101,13 @@ def initial_state(x_row: np.ndarray, phase: float, num_joints: int) -> RolloutSt
 
 def assemble_input(state: RolloutState, controls_t: tuple[jax.Array, jax.Array], blend_bias: float = 1.5) -> jax.Array:
     """The de-normalised PFNN input ``(48 + 6J,)`` of the current frame from the carried state and
-    the user's path at this frame (``(offsets (6, 2), yaw (6,))``, one row of :class:`Controls`)."""
+    the user's path at this frame (``(offsets (6, 2), yaw (6,))``, one row of
+    :class:`jaxstyle.control.loop.Controls`)."""
     traj = trajectory_input(state.hist_xz, state.hist_yaw, state.future, controls_t, blend_bias)
     return jnp.concatenate([traj, state.joint_pos, state.joint_vel])
 
 
-def advance(state: RolloutState, y: jax.Array, num_joints: int, stand=0.0, joint_smooth=JOINT_SMOOTH
+def advance(state: RolloutState, y: jax.Array, num_joints: int, stand=0.0, joint_smooth=loop.JOINT_SMOOTH
             ) -> tuple[RolloutState, Rollout]:
     """Move the character by one de-normalised output ``y (28 + 12J,)``: the next state and the
     generated frame.
@@ -142,73 +145,61 @@ def advance(state: RolloutState, y: jax.Array, num_joints: int, stand=0.0, joint
     return new_state, Rollout(positions, new_origin, new_yaw, new_phase, applied)
 
 
-def _step(params, adapter, x_norm, y_norm, num_joints, blend_bias, table, state: RolloutState, control):
-    x_n = ((assemble_input(state, control, blend_bias) - x_norm[0]) / x_norm[1])[None]
-    if table:
-        y_n = pfnn.pfnn_apply_table(params, x_n, state.phase, adapter_table=adapter)[0]
-    else:
-        y_n = pfnn.pfnn_apply(params, x_n, state.phase[None], adapter=adapter)[0]
-    stand = control[2] if len(control) > 2 else 0.0
-    return advance(state, y_n * y_norm[1] + y_norm[0], num_joints, stand)
+@struct.dataclass
+class PFNNModel:
+    """The 2018 PFNN with per-style residual adapters as a :class:`jaxstyle.control.model.CharacterModel`
+    (Mason et al. 2018 section 7.1 on Holden et al. 2017's runtime): ``params`` the base network,
+    ``x_norm``/``y_norm`` its ``(mean, std)`` statistics as float32 arrays (:meth:`create`), the
+    style conditioning of a character its adapter (``None``: the base alone).
 
-
-def model_step(params, x_norm, y_norm, num_joints: int, blend_bias: float = 1.5, table: bool = False):
-    """The PFNN's per-frame ``step(adapter, state, control) -> (state, frame)`` for the shared loop
-    of :mod:`jaxstyle.control.loop`, closing over the base weights and the (mean, std) arrays."""
-    return functools.partial(_per_style_step, params, x_norm, y_norm, num_joints, blend_bias, table)
-
-
-def _per_style_step(params, x_norm, y_norm, num_joints, blend_bias, table, adapter, state, control):
-    return _step(params, adapter, x_norm, y_norm, num_joints, blend_bias, table, state, control)
-
-
-def rollout(params: dict, adapter: dict | None, x_norm: Normaliser, y_norm: Normaliser, state: RolloutState,
-            controls: Controls, *, blend_bias: float = 1.5, table: bool = False) -> Rollout:
-    """Generate ``T = len(controls.offsets)`` frames closed-loop (jitted; ``vmap`` it, or use
-    :func:`rollout_batch`, for many characters or adapters). ``x_norm``/``y_norm`` are the base
-    model's statistics. A blend of styles is one adapter (:func:`jaxstyle.nn.pfnn.blend_adapters`).
-
-    ``table=True``: ``params`` and ``adapter`` are :func:`jaxstyle.nn.pfnn.discretise` tables (the
+    ``table=True``: ``params`` and the adapters are :func:`jaxstyle.nn.pfnn.discretise` tables (the
     paper's runtime, 50 phase bins: one weight matrix per layer is read per frame). Use it for one
-    character; for a batch of characters use the continuous phase (the default), which blends the
-    four control points' layer outputs instead of gathering a matrix per character."""
-    num_joints = state.joint_pos.shape[-1] // 3
-    return _rollout(params, adapter, normaliser_arrays(x_norm), normaliser_arrays(y_norm), state, controls,
-                    num_joints=num_joints, blend_bias=float(blend_bias), table=bool(table))
+    character; for a batch use the continuous phase (the default), which blends the four control
+    points' layer outputs instead of gathering a matrix per character."""
 
+    params: dict
+    x_norm: tuple
+    y_norm: tuple
+    num_joints: int = struct.field(pytree_node=False)
+    blend_bias: float = struct.field(pytree_node=False, default=1.5)
+    table: bool = struct.field(pytree_node=False, default=False)
 
-def step_fn(params: dict, adapter: dict | None, x_norm: Normaliser, y_norm: Normaliser, num_joints: int, *,
-            blend_bias: float = 1.5, table: bool = False):
-    """A jitted ``f(state, control, adapter=adapter) -> (state, frame)`` that generates ONE frame:
-    the runtime's call per displayed frame when a user steers live (``control`` is one row of
-    :class:`Controls`, ``(offsets (6, 2), yaw (6,))``). ``table`` as in :func:`rollout`.
+    @classmethod
+    def create(cls, params: dict, normalisers: tuple[Normaliser, Normaliser], num_joints: int, *,
+               blend_bias: float = 1.5, table: bool = False) -> PFNNModel:
+        """The model of a base ``params`` and its (input, output) :class:`Normaliser` s (or
+        ``(mean, std)`` pairs) for a skeleton of ``num_joints``."""
+        x_norm, y_norm = normalisers
+        return cls(params, normaliser_arrays(x_norm), normaliser_arrays(y_norm), int(num_joints),
+                   float(blend_bias), bool(table))
 
-    The base weights and statistics are compiled into the step as constants, as a game runtime
-    loads them once: that halves the per-frame cost at batch 1 against passing ~20 weight arrays
-    every call (``benchmarks/runtime.py``). The style stays an argument, so a user can switch or
-    blend styles live (an adapter of the same kind and rank compiles once)."""
-    step = model_step(params, normaliser_arrays(x_norm), normaliser_arrays(y_norm), int(num_joints),
-                      float(blend_bias), bool(table))
-    return loop.live_step(step, adapter)
+    def step(self, adapter, state: RolloutState, control) -> tuple[RolloutState, Rollout]:
+        """One frame: :func:`assemble_input`, the PFNN at the carried phase with ``adapter``, then
+        :func:`advance`."""
+        x_n = ((assemble_input(state, control, self.blend_bias) - self.x_norm[0]) / self.x_norm[1])[None]
+        if self.table:
+            y_n = pfnn.pfnn_apply_table(self.params, x_n, state.phase, adapter_table=adapter)[0]
+        else:
+            y_n = pfnn.pfnn_apply(self.params, x_n, state.phase[None], adapter=adapter)[0]
+        stand = control[2] if len(control) > 2 else 0.0
+        return advance(state, y_n * self.y_norm[1] + self.y_norm[0], self.num_joints, stand)
 
+    def initial_state(self, dataset, row: int, adapter=None) -> RolloutState:
+        """:func:`initial_state` at PFNN ``row`` of ``dataset`` with that row's phase."""
+        return initial_state(dataset.inputs[row], float(dataset.phases[row, 0]), self.num_joints)
 
-def rollout_batch(params: dict, adapters: dict | None, x_norm: Normaliser, y_norm: Normaliser,
-                  states: RolloutState, controls: Controls, *, blend_bias: float = 1.5) -> Rollout:
-    """:func:`rollout` for ``C`` characters at once: ``states`` and ``controls`` stacked on a
-    leading axis (``jax.tree.map(lambda *v: jnp.stack(v), *items)``), ``adapters`` stacked the same
-    way (one style per character) or ``None`` (the base); the base parameters are shared
-    (broadcast). Returns every field with a leading ``C`` axis."""
-    num_joints = states.joint_pos.shape[-1] // 3
-    return _rollout_batch(params, adapters, normaliser_arrays(x_norm), normaliser_arrays(y_norm), states, controls,
-                          num_joints=num_joints, blend_bias=float(blend_bias))
+    @staticmethod
+    def own_speed(dataset, rows: np.ndarray, units_per_meter: float, fps: float = 60.0) -> float:
+        """The median ground speed (m/s) over PFNN ``rows`` (their per-frame root motion)."""
+        step = dataset.outputs[rows, :2]  # root velocity, units per frame, in the character frame
+        return float(np.median(np.linalg.norm(step, axis=1)) * fps / units_per_meter)
 
+    def stack_styles(self, adapters):
+        """Adapters stacked per character (:func:`jaxstyle.nn.pfnn.stack_adapters`: CP adapters of
+        different ranks padded to the largest, which changes nothing they compute)."""
+        return pfnn.stack_adapters(list(adapters))
 
-@functools.partial(jax.jit, static_argnames=("num_joints", "blend_bias", "table"))
-def _rollout(params, adapter, x_norm, y_norm, state, controls, *, num_joints, blend_bias, table):
-    return loop.scan_frames(model_step(params, x_norm, y_norm, num_joints, blend_bias, table), adapter, state, controls)
-
-
-@functools.partial(jax.jit, static_argnames=("num_joints", "blend_bias"))
-def _rollout_batch(params, adapters, x_norm, y_norm, states, controls, *, num_joints, blend_bias):
-    return loop.scan_characters(model_step(params, x_norm, y_norm, num_joints, blend_bias), adapters, states, controls,
-                                shared_style=adapters is None)
+    def blend_styles(self, adapters, weights) -> dict:
+        """The blend of adapters with ``weights`` (:func:`jaxstyle.nn.pfnn.blend_adapters`: exact
+        for CP adapters, whose ranks add)."""
+        return pfnn.blend_adapters(pfnn.stack_adapters(list(adapters)), np.asarray(weights, dtype=np.float64))

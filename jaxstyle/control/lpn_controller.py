@@ -47,22 +47,25 @@ faster than the stride, whose cycle the global phase counts (Neutral_FW: 0.018 a
 cycles per frame; Chicken_FR: 0.020 against 0.019), so ``kappa = 1`` would run a walk's phase
 half as fast again as its data.
 
-Shapes: one character per call of :func:`rollout`; :func:`rollout_batch` takes ``C`` characters
-(states, controls and styles stacked on a leading axis) and shares the network parameters.
+:class:`StyleNetModel` is this step as a :class:`jaxstyle.control.model.CharacterModel` (a
+character's style conditioning is its runtime style): :func:`jaxstyle.control.model.rollout` drives
+one character, :func:`jaxstyle.control.model.rollout_batch` ``C`` characters (states, controls and
+styles stacked on a leading axis), sharing the network parameters.
 """
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from jaxstyle.control import loop
-from jaxstyle.control.loop import Controls, f32, initial_ground, normaliser_arrays, rotate_xz, trajectory_input
-from jaxstyle.data.lpn_features import NUM_PHASE_FEATURES, LPNLayout
+from jaxstyle.control.loop import f32, initial_ground, normaliser_arrays, rotate_xz, trajectory_input
+from jaxstyle.data.datasets import style_rows
+from jaxstyle.data.lpn_features import NUM_PHASE_FEATURES, LPNLayout, decode_lpn, end_effector_columns
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
 from jaxstyle.nn import style_models
@@ -102,6 +105,21 @@ class LPNRollout(NamedTuple):
     contacts: jax.Array
     outputs: jax.Array
     global_phase: jax.Array
+
+    def decode(self, skeleton):
+        """The :class:`jaxstyle.Motion` of one character's frames on ``skeleton``
+        (:func:`jaxstyle.data.lpn_features.decode_lpn` of the outputs)."""
+        return decode_lpn(np.asarray(self.outputs, dtype=np.float64), skeleton)
+
+    def predicted_contacts(self, num_joints: int) -> np.ndarray:
+        """The network's two foot contact labels ``(T, 2)`` (left, right)."""
+        return np.asarray(self.contacts, dtype=np.float64)
+
+    def arrays(self) -> dict:
+        """What :func:`jaxstyle.output.export.save_rollout` saves: the fields, the local phases as
+        ``phase``."""
+        return {"positions": self.positions, "origin": self.origin, "yaw": self.yaw, "outputs": self.outputs,
+                "phase": self.phases, "contacts": self.contacts}
 
 
 def local_phase_advance(p0_8: jax.Array, p1_8: jax.Array) -> jax.Array:
@@ -286,79 +304,88 @@ def _gate(config: StyleModelConfig, state: LPNState, x_n: jax.Array, gate_column
     return x_n[:, jnp.asarray(gate_columns)]
 
 
-def _step(params, config, style, x_norm, y_norm, gate_columns, num_bones, blend_bias, state: LPNState, control):
-    x = jnp.concatenate([trajectory_input(state.hist_xz, state.hist_yaw, state.future, control, blend_bias),
-                         state.joints])
-    x_n = ((x - x_norm[0]) / x_norm[1])[None]
-    y_n = style_models.model_apply(params, config, x_n, _gate(config, state, x_n, gate_columns), style)[0]
-    stand = control[2] if len(control) > 2 else 0.0
-    return advance(state, y_n * y_norm[1] + y_norm[0], num_bones, stand)
-
-
 def _check(config: StyleModelConfig, gate_columns):
     if config.backbone == "mann" and gate_columns is None:
-        raise ValueError("the MANN backbone gates on end-effector velocities: pass gate_columns="
-                         "jaxstyle.data.lpn_features.end_effector_columns(skeleton)")
+        raise ValueError("the MANN backbone gates on end-effector velocities: give StyleNetModel.create the "
+                         "training skeleton (its gate_columns, jaxstyle.data.lpn_features.end_effector_columns)")
     return None if gate_columns is None else tuple(int(c) for c in gate_columns)
 
 
-def model_step(params, config: StyleModelConfig, x_norm, y_norm, gate_columns, num_bones: int, blend_bias: float = 1.5):
-    """The style model's per-frame ``step(style, state, control) -> (state, frame)`` for the shared
-    loop of :mod:`jaxstyle.control.loop`, closing over the network's weights and statistics."""
-    return functools.partial(_per_style_step, params, config, x_norm, y_norm, gate_columns, num_bones, blend_bias)
+@struct.dataclass
+class StyleNetModel:
+    """A 2022 style model (LPN, MANN or PFNN backbone with FiLM, one-hot or residual-adapter
+    conditioning; :mod:`jaxstyle.nn.style_models`) as a
+    :class:`jaxstyle.control.model.CharacterModel` (Mason, Starke & Komura 2022 section 4.4; see
+    the module docstring): ``params`` and ``config`` the trained network, ``x_norm``/``y_norm`` its
+    training data's ``(mean, std)`` as float32 arrays (:meth:`create`). A character's style
+    conditioning is its runtime style: a precomputed FiLM vector ``(4 H,)``, a one-hot row or an
+    adapter (what :func:`jaxstyle.nn.style_models.model_apply` takes). ``gate_columns``: the MANN
+    backbone's gating columns of the normalised input."""
 
+    params: dict
+    x_norm: tuple
+    y_norm: tuple
+    config: StyleModelConfig = struct.field(pytree_node=False)
+    num_bones: int = struct.field(pytree_node=False)
+    gate_columns: tuple | None = struct.field(pytree_node=False, default=None)
+    blend_bias: float = struct.field(pytree_node=False, default=1.5)
 
-def _per_style_step(params, config, x_norm, y_norm, gate_columns, num_bones, blend_bias, style, state, control):
-    return _step(params, config, style, x_norm, y_norm, gate_columns, num_bones, blend_bias, state, control)
+    @classmethod
+    def create(cls, params: dict, config: StyleModelConfig, normalisers: tuple[Normaliser, Normaliser],
+               skeleton=None, *, blend_bias: float = 1.5) -> StyleNetModel:
+        """The model of a trained ``params``/``config`` with its training data's (input, output)
+        :class:`Normaliser` s (or ``(mean, std)`` pairs); ``skeleton``, a clip of the training
+        skeleton, gives the MANN backbone's gating columns (the other backbones need none)."""
+        x_norm, y_norm = (normaliser_arrays(n) for n in normalisers)
+        num_bones = (len(x_norm[0]) - 48) // 12
+        if LPNLayout(num_bones).input_size != config.input_size:
+            raise ValueError(f"the normalisers have {len(x_norm[0])} inputs, the model {config.input_size}")
+        cols = end_effector_columns(skeleton) if config.backbone == "mann" and skeleton is not None else None
+        return cls(params, x_norm, y_norm, config, int(num_bones), _check(config, cols), float(blend_bias))
 
+    def step(self, style, state: LPNState, control) -> tuple[LPNState, LPNRollout]:
+        """One frame: the LPN-layout input from the carried state, the network with ``style`` and
+        its gate (:func:`_gate`), then :func:`advance`."""
+        x = jnp.concatenate([trajectory_input(state.hist_xz, state.hist_yaw, state.future, control, self.blend_bias),
+                             state.joints])
+        x_n = ((x - self.x_norm[0]) / self.x_norm[1])[None]
+        gate = _gate(self.config, state, x_n, self.gate_columns)
+        y_n = style_models.model_apply(self.params, self.config, x_n, gate, style)[0]
+        stand = control[2] if len(control) > 2 else 0.0
+        return advance(state, y_n * self.y_norm[1] + self.y_norm[0], self.num_bones, stand)
 
-_STATIC = ("config", "gate_columns", "num_bones", "blend_bias")
+    def phase_ratio(self, style, dataset, name: str) -> float:
+        """The global-phase rate a character of ``style`` (runtime style) starts with: for Table
+        2's PFNN backbone :func:`phase_ratio` on the training rows of the dataset style ``name``
+        (:func:`jaxstyle.data.datasets.style_rows`); 1 for the LPN and MANN backbones, which do not
+        read the global phase."""
+        if self.config.backbone != "pfnn":
+            return 1.0
+        return float(phase_ratio(self.params, self.config, style, self.x_norm, self.y_norm, dataset,
+                                 style_rows(dataset, name), gate_columns=self.gate_columns))
 
+    def initial_state(self, dataset, row: int, style=None) -> LPNState:
+        """The start at LPN ``row`` of ``dataset``: its input, local phases and global phase, with
+        the global phase's rate for ``style`` on the row's dataset style (:meth:`phase_ratio`;
+        ``style=None``: rate 1). A dataset without global phases starts at phase 0, which only the
+        PFNN backbone reads."""
+        ratio = 1.0 if style is None else self.phase_ratio(style, dataset, dataset.styles[int(dataset.style[row])])
+        phase = float(dataset.global_phase[row]) if len(dataset.global_phase) == len(dataset.inputs) else 0.0
+        return initial_state(dataset.inputs[row], dataset.phases[row], self.num_bones, phase, ratio)
 
-@functools.partial(jax.jit, static_argnames=_STATIC)
-def _rollout(params, style, x_norm, y_norm, state, controls, *, config, gate_columns, num_bones, blend_bias):
-    step = model_step(params, config, x_norm, y_norm, gate_columns, num_bones, blend_bias)
-    return loop.scan_frames(step, style, state, controls)
+    @staticmethod
+    def own_speed(dataset, rows: np.ndarray, units_per_meter: float, fps: float = 60.0) -> float:
+        """The median ground speed (m/s) over LPN ``rows``: the first output trajectory sample is
+        the next frame's ground position in the current frame (:mod:`jaxstyle.data.lpn_features`)."""
+        y = dataset.outputs[rows]
+        return float(np.median(np.hypot(y[:, 0], y[:, FUTURE_SAMPLES])) * fps / units_per_meter)
 
+    def stack_styles(self, styles):
+        """Runtime styles stacked per character (one kind and shape)."""
+        return jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *styles)
 
-@functools.partial(jax.jit, static_argnames=_STATIC)
-def _rollout_batch(params, styles, x_norm, y_norm, states, controls, *, config, gate_columns, num_bones,
-                   blend_bias):
-    step = model_step(params, config, x_norm, y_norm, gate_columns, num_bones, blend_bias)
-    return loop.scan_characters(step, styles, states, controls)
-
-
-def rollout(params: dict, config: StyleModelConfig, style, x_norm: Normaliser, y_norm: Normaliser,
-            state: LPNState, controls: Controls, *, gate_columns=None, blend_bias: float = 1.5) -> LPNRollout:
-    """Generate ``T = len(controls.offsets)`` frames closed-loop with a style model (jitted).
-
-    ``style``: the per-style runtime parameter of :func:`jaxstyle.nn.style_models.model_apply` (a FiLM
-    vector ``(4 H,)``, precomputed). ``x_norm``/``y_norm``: the training data's statistics.
-    ``gate_columns``: the MANN backbone's gating columns of the normalised input."""
-    cols = _check(config, gate_columns)
-    return _rollout(params, style, normaliser_arrays(x_norm), normaliser_arrays(y_norm), state, controls,
-                    config=config, gate_columns=cols, num_bones=state.joints.shape[-1] // 12,
-                    blend_bias=float(blend_bias))
-
-
-def step_fn(params: dict, config: StyleModelConfig, style, x_norm: Normaliser, y_norm: Normaliser, num_bones: int, *,
-            gate_columns=None, blend_bias: float = 1.5):
-    """A jitted ``f(state, control, style=style) -> (state, frame)`` that generates ONE frame (the
-    runtime's call per displayed frame when a user steers live); arguments as :func:`rollout`.
-    The network's weights are compiled in as constants (see :func:`jaxstyle.control.controller.step_fn`);
-    the style (a FiLM vector, e.g. a live barycentric blend) stays an argument."""
-    cols = _check(config, gate_columns)
-    step = model_step(params, config, normaliser_arrays(x_norm), normaliser_arrays(y_norm), cols, int(num_bones),
-                      float(blend_bias))
-    return loop.live_step(step, style)
-
-
-def rollout_batch(params: dict, config: StyleModelConfig, styles, x_norm: Normaliser, y_norm: Normaliser,
-                  states: LPNState, controls: Controls, *, gate_columns=None, blend_bias: float = 1.5) -> LPNRollout:
-    """:func:`rollout` for ``C`` characters at once: ``styles``, ``states`` and ``controls`` stacked
-    on a leading axis (one style per character; repeat a style to share it); the network's
-    parameters are shared. Every field of the result has a leading ``C`` axis."""
-    cols = _check(config, gate_columns)
-    return _rollout_batch(params, styles, normaliser_arrays(x_norm), normaliser_arrays(y_norm), states, controls,
-                          config=config, gate_columns=cols, num_bones=states.joints.shape[-1] // 12,
-                          blend_bias=float(blend_bias))
+    def blend_styles(self, styles, weights):
+        """The blend of runtime styles with barycentric ``weights`` (section 4.4:
+        :func:`jaxstyle.nn.style_models.blend_styles`, for FiLM the weighted sum of the FiLM
+        vectors). Weights ``(1, 0, ...)`` give the first style exactly."""
+        return style_models.blend_styles(self.config, self.stack_styles(styles), jnp.asarray(weights, jnp.float32))

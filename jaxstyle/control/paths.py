@@ -12,7 +12,7 @@ the skeleton's file units; 100STYLE is in centimetres): :func:`straight`, :func:
 a given speed, then stop). Yaw is the rotation about +Y that takes +Z onto the facing direction,
 so a yaw ``a`` faces ``(sin a, cos a)`` in (x, z), as in :mod:`jaxstyle.motion.character_frame`.
 
-:func:`jaxstyle.control.controller.path_controls` turns a signal into the per-frame trajectory samples the
+:func:`jaxstyle.control.loop.path_controls` turns a signal into the per-frame trajectory samples the
 networks read.
 """
 

@@ -286,6 +286,25 @@ class Dataset:
         return x_norm.apply(self.inputs).astype(np.float32), y_norm.apply(self.outputs).astype(np.float32)
 
 
+FORWARD_GAITS = ("FW", "FR")
+"""The gaits a character starts from and takes its own speed from, in order of preference: a
+forward walk, else a forward run (the paths move forward)."""
+
+
+def style_rows(dataset: Dataset, style: str, gaits: Sequence[str] = FORWARD_GAITS) -> np.ndarray:
+    """Training rows of ``style``, only those of its clips of the first of ``gaits`` it has (all its
+    rows when it has none of them): where a driven character of the style starts, and what its own
+    speed and capture are read from."""
+    rows = dataset.rows_of_style(style, "train")
+    if len(rows) == 0:
+        rows = dataset.rows_of_style(style)
+    clip_gaits = np.array([dataset.specs[c].gait for c in dataset.clip[rows]])
+    for gait in gaits:
+        if (clip_gaits == gait).any():
+            return rows[clip_gaits == gait]
+    return rows
+
+
 def _load(spec: ClipSpec, fps: float | None) -> tuple[Motion, float]:
     """The motion of a spec (see :func:`load_clip`) and the file's own frame rate."""
     motion = read_bvh(spec.path)

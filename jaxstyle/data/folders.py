@@ -53,16 +53,18 @@ def style_root(path: str | os.PathLike) -> Path:
                         "`jaxstyle data generate` writes such a folder, `jaxstyle data fetch 100style` downloads one")
 
 
-def available_styles(root: Path) -> tuple[str, ...]:
+def available_styles(root: str | os.PathLike) -> tuple[str, ...]:
     """Styles of a 100STYLE-layout folder that have at least one BVH file."""
+    root = Path(root)
     return tuple(sorted(p.name for p in root.iterdir() if p.is_dir() and any(p.glob(f"{p.name}_*.bvh"))))
 
 
-def split_styles(root: Path, fewshot_styles: Sequence[str] | None = None,
+def split_styles(root: str | os.PathLike, fewshot_styles: Sequence[str] | None = None,
                  base_styles: Sequence[str] | None = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """``(base, few-shot)`` styles of ``root``. The few-shot ones default to the procedural data's
     :data:`DEMO_FEWSHOT` or the paper's :data:`PAPER_FEWSHOT` when the folder has them, else its last
     style; the base ones default to every other style."""
+    root = Path(root)
     have = available_styles(root)
     if not have:
         raise PipelineError(f"no <Style>/<Style>_<GAIT>.bvh file under {root}")
@@ -92,12 +94,13 @@ def cut(spec: ClipSpec, seconds: float | None) -> ClipSpec:
     return dataclasses.replace(spec, stop=stop if spec.stop is None else min(spec.stop, stop))
 
 
-def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None,
+def folder_specs(root: str | os.PathLike, styles: Sequence[str], gaits: Sequence[str] | None = None,
                  joint_map: JointMap | None = None) -> list[ClipSpec]:
     """Whole-file clips of ``<root>/<Style>/<Style>_<GAIT>.bvh`` for a folder without
     ``Frame_Cuts.csv``: every gait found unless ``gaits`` names some; each clip mirrored too unless
     ``Dataset_List.csv`` (100STYLE's columns ``Style Name``, ``Symmetric``) says the style is not
     symmetric."""
+    root = Path(root)
     listed = root / "Dataset_List.csv"
     symmetric = datasets.symmetric_styles(listed) if listed.is_file() else {}
     specs = []
@@ -115,13 +118,14 @@ def folder_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None 
     return specs
 
 
-def clip_specs(root: Path, styles: Sequence[str], gaits: Sequence[str] | None = None,
+def clip_specs(root: str | os.PathLike, styles: Sequence[str], gaits: Sequence[str] | None = None,
                max_seconds: float | None = None, joint_map: JointMap | None = None) -> list[ClipSpec]:
     """Clips of ``styles`` and ``gaits``, each cut to its first ``max_seconds`` (default: the whole
     Frame_Cuts range, or the whole file); mirrored where the style is symmetric. With
     ``Frame_Cuts.csv`` (the 100STYLE layout) ``gaits`` defaults to :data:`LOCOMOTION_GAITS`, without
     it to every gait found (:func:`folder_specs`). ``joint_map`` (``--joint-map``) goes on every
     clip, for skeletons whose joints are not found by name (:class:`jaxstyle.motion.skeleton.JointMap`)."""
+    root = Path(root)
     if not (root / "Frame_Cuts.csv").is_file():
         return [cut(s, max_seconds) for s in folder_specs(root, styles, gaits, joint_map)]
     gaits = tuple(gaits or LOCOMOTION_GAITS)

@@ -35,6 +35,7 @@ from typing import Callable, NamedTuple, Sequence
 import jax
 import numpy as np
 
+from jaxstyle.control.controller import PFNNModel
 from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
 from jaxstyle.data.folders import (  # noqa: F401  (re-exported: the pipeline's data step)
@@ -67,17 +68,19 @@ from jaxstyle.motion import Motion
 from jaxstyle.motion.bvh import frame_rate, read_joint_names
 from jaxstyle.motion.skeleton import JointMap
 from jaxstyle.nn import pfnn
-from jaxstyle.output import synthesis
-from jaxstyle.output.synthesis import Character, SynthesisResult
+from jaxstyle.output import drive, synthesis
+from jaxstyle.output.drive import Character
+from jaxstyle.output.synthesis import SynthesisResult
 from jaxstyle.train.checkpoint import json_text, read_json
 from jaxstyle.train.scan import DEFAULT_RATES
 
 # --- data ---------------------------------------------------------------------------------------
 
-def fewshot_specs(root: Path, styles: Sequence[str], seconds: float,
+def fewshot_specs(root: str | os.PathLike, styles: Sequence[str], seconds: float,
                   gaits: Sequence[str] | None = None, joint_map: JointMap | None = None) -> list[ClipSpec]:
     """One few-shot set per style and gait, named ``<Style>_<GAIT>``: ONE clip of ``seconds`` (plus
     the trajectory window the rows need) and its mirror for symmetric styles (2018 section 7)."""
+    root = Path(root)
     if seconds <= 0:
         raise PipelineError(f"few-shot seconds must be positive, got {seconds:g}")
     specs = []
@@ -108,7 +111,7 @@ def style_table(dataset: datasets.Dataset) -> list[str]:
         rows = dataset.rows_of_style(s)
         clips = len(np.unique(dataset.clip[rows]))
         split = [int((dataset.split[rows] == k).sum()) for k in range(3)]
-        speed = synthesis.own_speed(dataset, rows, upm)
+        speed = PFNNModel.own_speed(dataset, rows, upm)
         dphase = np.mod(np.diff(dataset.phases[rows, 0]), 1.0)
         steps = 2 * 60.0 * np.median(dphase[dphase < 0.5]) if (dphase < 0.5).any() else float("nan")
         lines.append(f"| {s} | {clips} | {split[0]} / {split[1]} / {split[2]} | {speed:.2f} | {steps:.2f} |")
@@ -187,6 +190,18 @@ class Base(NamedTuple):
     dataset: datasets.Dataset
     skeleton: Motion
     settings: BaseSettings
+
+    def adapter(self, style: str) -> dict:
+        """The adapter of the base style ``style`` (one of ``dataset.styles``)."""
+        if style not in self.dataset.styles:
+            raise PipelineError(f"unknown base style {style!r}; the base has {', '.join(self.dataset.styles)}")
+        s = self.dataset.styles.index(style)
+        return jax.tree.map(lambda v: v[s], self.adapters)
+
+    def character_model(self, *, blend_bias: float = 1.5) -> PFNNModel:
+        """The base as a :class:`jaxstyle.control.model.CharacterModel`
+        (:class:`jaxstyle.control.controller.PFNNModel`: a character's conditioning is its adapter)."""
+        return PFNNModel.create(self.params, self.normalisers, self.skeleton.num_joints, blend_bias=blend_bias)
 
 
 def _settings_file(directory: Path) -> Path:
@@ -405,9 +420,9 @@ def _read_sweep_json(path: Path) -> dict:
 def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.Dataset | None, chosen: dict | None,
                *, base_styles: Sequence[str] = (), fewshot_sets: Sequence[str] = (), blend: bool = False
                ) -> list[Character]:
-    """:class:`~jaxstyle.output.synthesis.Character` s: base styles (the base network with that style's
+    """:class:`~jaxstyle.output.drive.Character` s: base styles (the base network with that style's
     adapter), few-shot sets (their chosen adapters from ``sweep_dir``), and with ``blend`` a 50/50
-    blend of the first two few-shot sets (:func:`jaxstyle.output.synthesis.blend_character`)."""
+    blend of the first two few-shot sets (:func:`jaxstyle.output.drive.blend_character`)."""
     out = []
     for style in base_styles:
         if style not in base.dataset.styles:
@@ -424,7 +439,7 @@ def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
         shot_chars = out[len(base_styles):]
         if len(shot_chars) < 2:
             raise PipelineError("a blend needs two few-shot sets")
-        out.append(synthesis.blend_character(*shot_chars[:2]))
+        out.append(drive.blend_character(base.character_model(), shot_chars[:2], (0.5, 0.5)))
     return out
 
 
@@ -444,16 +459,10 @@ def synthesize(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
     contact sheet, quality.csv)."""
     chars = characters(base, sweep_dir, shots, chosen, base_styles=base_styles, fewshot_sets=fewshot_sets,
                        blend=blend)
-    result = synthesis.synthesize(base.params, base.normalisers, chars, base.skeleton, Path(directory),
+    result = synthesis.synthesize(base.character_model(), chars, base.skeleton, Path(directory),
                                   path_names=list(paths), seconds=seconds, speed=speed, foot_lock=foot_lock, mp4=mp4,
                                   every=every, contact_sheet=True, progress=progress)
     return result, chars
-
-
-def rollout_summary(result: SynthesisResult, num_characters: int, num_paths: int) -> str:
-    """One line: characters x paths, frames and speed of the batched rollout."""
-    return (f"{num_characters} characters x {num_paths} paths, {result.frames:,} frames in one batched rollout: "
-            f"{result.seconds:.2f} s ({result.frames / result.seconds:,.0f} frames/s)")
 
 
 # --- timing -------------------------------------------------------------------------------------

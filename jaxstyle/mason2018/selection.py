@@ -11,7 +11,7 @@ The paper chose each new style's dropout rate by eye. jaxstyle chooses it automa
 3. **Validation loss** per pair (:func:`validation_grid`): MSE of the held-out rows on normalised
    outputs, dropout off.
 4. **Closed-loop check** per pair (:func:`check_rollouts`): the character walks a turning path
-   (:func:`jaxstyle.control.controller.turning_path`, the style's own median speed, ``turn_deg_per_s``)
+   (:func:`jaxstyle.control.loop.turning_path`, the style's own median speed, ``turn_deg_per_s``)
    for ``seconds``, driven only by its own predictions, i.e. beyond anything in the clip; the
    frozen base without an adapter (the style-agnostic "average motion") walks the same path from
    the same start. A pair passes when (:class:`RolloutCheck`) every output is finite, bones keep
@@ -48,7 +48,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control import controller
+from jaxstyle.control import loop
+from jaxstyle.control.controller import PFNNModel
+from jaxstyle.control.model import rollout
 from jaxstyle.data.datasets import Dataset
 from jaxstyle.data.folders import PipelineError
 from jaxstyle.data.normalise import Normaliser
@@ -134,8 +136,8 @@ RolloutCheck = defaults.RolloutCheck  # the thresholds both papers' checks share
 ROLLOUT_FIELDS = defaults.ROLLOUT_FIELDS
 
 
-def _rollout_rates(params, adapters_R, x_norm, y_norm, state, controls):
-    return jax.vmap(lambda a: controller.rollout(params, a, x_norm, y_norm, state, controls))(adapters_R)
+def _rollout_rates(model: PFNNModel, adapters_R, state, controls):
+    return jax.vmap(lambda a: rollout(model, a, state, controls))(adapters_R)
 
 
 def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normaliser, Normaliser], dataset: Dataset,
@@ -147,7 +149,7 @@ def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normalis
     the same path (``base_skating_m_s``, ``base_bone_error``)."""
     check = check or RolloutCheck()
     upm = estimate_units_per_meter(skeleton)
-    x_norm, y_norm = normalisers
+    model = PFNNModel.create(params, normalisers, skeleton.num_joints)
     num_frames = int(round(check.seconds * fps))
     num_styles = len(data.styles)
     num_rates = jax.tree.leaves(adapters_SxR)[0].shape[1]
@@ -168,11 +170,11 @@ def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normalis
         ref["contact_fraction"][s], ref["skating_m_s"][s], ref["speed_m_s"][s] = (
             real.contact_fraction, real.skating, speed / upm)
         first = rows[np.argmin(dataset.frame[rows])]
-        state = controller.initial_state(dataset.inputs[first], float(dataset.phases[first, 0]), skeleton.num_joints)
-        controls = controller.turning_path(num_frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
+        state = model.initial_state(dataset, first)
+        controls = loop.turning_path(num_frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
         adapters_R = jax.tree.map(lambda v, s=s: v[s], adapters_SxR)
-        result = _rollout_rates(params, adapters_R, x_norm, y_norm, state, controls)
-        base = controller.rollout(params, None, x_norm, y_norm, state, controls)
+        result = _rollout_rates(model, adapters_R, state, controls)
+        base = rollout(model, None, state, controls)
         base_pos, base_origin = np.asarray(base.positions), np.asarray(base.origin)
         base_measures = _rollout_measures(base_pos, base_origin, bool(np.isfinite(base_pos).all()), skeleton, fps,
                                           floor, upm, check, speed)

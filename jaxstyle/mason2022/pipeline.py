@@ -68,12 +68,13 @@ class LPNData(NamedTuple):
     skeleton: Motion
 
 
-def build_data(root: Path, styles: Sequence[str], new_styles: Sequence[str] = (), *,
+def build_data(root: str | os.PathLike, styles: Sequence[str], new_styles: Sequence[str] = (), *,
                gaits: Sequence[str] | None = None, max_seconds: float | None = None,
                cache: str | os.PathLike | None = None, progress: bool = False, joint_map=None) -> LPNData:
     """LPN rows (cached) of ``styles`` and ``new_styles`` of the style folder ``root``
     (:func:`jaxstyle.data.folders.clip_specs`: ``gaits``, ``max_seconds``, ``joint_map``); short
     clips skipped."""
+    root = Path(root)
     def build(names):
         return datasets.build_lpn_dataset(clip_specs(root, names, gaits, max_seconds, joint_map), cache_dir=cache,
                                           skip_short=True, progress=progress)
@@ -442,7 +443,8 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     and per style ``(S,)`` references ``real_contact_fraction``, ``speed_m_s``,
     ``base_skating_m_s``, ``base_bone_error`` (see :class:`ClosedLoopCheck`)."""
     from jaxstyle.control import loop, lpn_controller
-    from jaxstyle.data.lpn_features import bone_points, end_effector_columns
+    from jaxstyle.control.model import rollout_batch
+    from jaxstyle.data.lpn_features import bone_points
     from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
     from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
     from jaxstyle.motion.kinematics import UP_AXIS, global_positions
@@ -455,6 +457,7 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     frames = int(round(check.seconds * fps))
     feet = list(FootJoints.find(skeleton).ankles) + list(FootJoints.find(skeleton).toes)
     gen0 = model.params["style"]["generator"]
+    character = lpn_controller.StyleNetModel.create(model.params, model.config, data.base.normalisers(), skeleton)
     states, controls, styles = [], [], []
     ref = {k: np.zeros(num_styles) for k in ("real_contact_fraction", "speed_m_s", "base_skating_m_s",
                                             "base_bone_error")}
@@ -486,9 +489,7 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     def stack(items):
         return jax.tree.map(lambda *a: np.stack(a), *items)
 
-    cols = end_effector_columns(skeleton) if model.config.backbone == "mann" else None
-    out = lpn_controller.rollout_batch(model.params, model.config, np.stack(styles), *data.base.normalisers(),
-                                       stack(states), stack(controls), gate_columns=cols)
+    out = rollout_batch(character, np.stack(styles), stack(states), stack(controls))
     positions = np.asarray(out.positions)[:, :, :num_joints]
     origin = np.asarray(out.origin)
     finite_c = np.isfinite(positions).all(axis=(1, 2, 3)) & np.isfinite(np.asarray(out.outputs)).all(axis=(1, 2))

@@ -11,9 +11,10 @@ them, and drive them along paths (Mason, Starke & Komura 2022, section 4.4).
    use; otherwise the style's one-hot row or adapter), new styles fine-tuned by the FiLM sweep
    (``finetuned_generators.npz`` at the rate of ``chosen_rates.json``: the FiLM vector of the new
    style's training clips under its fine-tuned generator), and a 2- or 3-way blend of the first
-   characters (:func:`jaxstyle.output.lpn_synthesis.blend_character`, section 4.4's interpolation);
-3. :func:`synthesize`: :func:`jaxstyle.output.lpn_synthesis.synthesize` (one batched rollout; GIF,
-   BVH files, the quality table of the 2018 path).
+   characters (:func:`jaxstyle.output.drive.blend_character`, section 4.4's interpolation);
+3. :func:`synthesize`: :func:`jaxstyle.output.synthesis.synthesize` with the model as a
+   :class:`jaxstyle.control.lpn_controller.StyleNetModel` (:meth:`Loaded.character_model`; one
+   batched rollout; GIF, BVH files, the quality table), the same synthesis as the 2018 model's.
 
 Every Table 2 model drives characters: the LPN and MANN backbones, and the PFNN backbones (PFNN
 One-hot, PFNN Resad, PFNN FiLM), which the controller evaluates at a carried global phase
@@ -33,6 +34,7 @@ from typing import NamedTuple, Sequence
 import jax
 import numpy as np
 
+from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
 from jaxstyle.data.folders import PipelineError, located_path
@@ -41,8 +43,8 @@ from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.output import lpn_synthesis
-from jaxstyle.output.lpn_synthesis import LPNCharacter
+from jaxstyle.output import drive, synthesis
+from jaxstyle.output.drive import Character
 from jaxstyle.output.synthesis import SynthesisResult
 
 MODELS = {"lpn-film": "LPN FiLM", "lpn-onehot": "LPN One-hot", "lpn-resad": "LPN Resad", "mann-film": "MANN FiLM",
@@ -63,6 +65,14 @@ class Loaded(NamedTuple):
     data: pipeline.LPNData
     directory: Path
     epochs: int
+
+    def character_model(self, *, blend_bias: float = 1.5) -> StyleNetModel:
+        """The model as a :class:`jaxstyle.control.model.CharacterModel`
+        (:class:`jaxstyle.control.lpn_controller.StyleNetModel`: a character's conditioning is its
+        runtime style), normalised with its training data's statistics."""
+        m = self.model
+        return StyleNetModel.create(m.params, m.config, self.data.base.normalisers(), self.data.skeleton,
+                                    blend_bias=blend_bias)
 
 
 def _dataclass(cls, values: dict):
@@ -130,8 +140,8 @@ def _generators(model: pipeline.Model, path: Path) -> dict:
 
 def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequence[str] = (),
                finetune_dir: str | os.PathLike | None = None, blend: Sequence[float] | None = None
-               ) -> list[LPNCharacter]:
-    """:class:`~jaxstyle.output.lpn_synthesis.LPNCharacter` s: training ``styles``, ``new_styles``
+               ) -> list[Character]:
+    """:class:`~jaxstyle.output.drive.Character` s: training ``styles``, ``new_styles``
     fine-tuned by the FiLM sweep (``finetune_dir``: default the model's folder) at their chosen rate,
     and with ``blend`` (2 or 3 barycentric weights) a blend of the first 2 or 3 of them."""
     model, data = loaded.model, loaded.data
@@ -144,7 +154,7 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
                 raise PipelineError(f"unknown style {name!r}; the model has {', '.join(model.data.styles)}")
             s = model.data.styles.index(name)
             runtime = vectors[s] if film_model else style_models.style_runtime(model.params, model.config, s)
-            out.append(LPNCharacter(name, name, runtime, data.base, name))
+            out.append(Character(name, name, runtime, data.base, name))
     if new_styles:
         folder = Path(finetune_dir or loaded.directory)
         files = [folder / "chosen_rates.json", folder / "finetuned_generators.npz"]
@@ -161,14 +171,14 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
             s = new.styles.index(name)
             gen = jax.tree.map(lambda v, s=s, r=int(chosen[name]["rate_index"]): v[s, r], gens)
             runtime = film.clip_films(gen, new.clips[new.train_clips[s]]).mean(axis=0)
-            out.append(LPNCharacter(f"{name} (fine-tuned, rate {chosen[name]['rate']:g})", name, runtime, data.new,
+            out.append(Character(f"{name} (fine-tuned, rate {chosen[name]['rate']:g})", name, runtime, data.new,
                                     name))
     if blend is not None:
         k = len(blend)
         if len(out) < k:
             raise PipelineError(f"a blend of {k} styles needs {k} styles to blend, got {len(out)}")
         try:
-            out.append(lpn_synthesis.blend_character(model.config, out[:k], blend))
+            out.append(drive.blend_character(loaded.character_model(), out[:k], blend))
         except ValueError as e:
             raise PipelineError(f"blend weights {list(blend)}: {e}") from None
     if not out:
@@ -176,34 +186,25 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
     return out
 
 
-def synthesize(loaded: Loaded, chars: Sequence[LPNCharacter], directory: str | os.PathLike, *,
+def synthesize(loaded: Loaded, chars: Sequence[Character], directory: str | os.PathLike, *,
                paths: Sequence[str] = ("circle",), seconds: float = 8.0, speed: float | None = None,
                foot_lock: bool = True, gif: bool = True, mp4: bool = False, every: int = 2,
                progress: bool = True) -> SynthesisResult:
     """``chars`` along ``paths`` in one batched rollout of the loaded model, written to ``directory``
-    (:func:`jaxstyle.output.lpn_synthesis.synthesize`: GIFs, BVH files, a contact sheet, quality.csv)."""
-    return lpn_synthesis.synthesize(loaded.model.params, loaded.model.config, loaded.data.base.normalisers(), chars,
-                                    loaded.data.skeleton, Path(directory), path_names=list(paths), seconds=seconds,
-                                    speed=speed, foot_lock=foot_lock, gif=gif, mp4=mp4, every=every, contact_sheet=gif,
-                                    progress=progress)
+    (:func:`jaxstyle.output.synthesis.synthesize`: GIFs, BVH files, a contact sheet, quality.csv)."""
+    return synthesis.synthesize(loaded.character_model(), chars, loaded.data.skeleton, Path(directory),
+                                path_names=list(paths), seconds=seconds, speed=speed, foot_lock=foot_lock, gif=gif,
+                                mp4=mp4, every=every, contact_sheet=gif, progress=progress)
 
 
 def measure_quality(loaded: Loaded, styles: Sequence[str], new_styles: Sequence[str] = (), **kwargs):
     """The quality benchmark's rows of a loaded model's characters (:func:`characters`: its
     training ``styles`` as ``base``, the fine-tuned ``new_styles`` as ``few-shot``), driven and
-    measured by :func:`jaxstyle.output.quality.run_lpn` (``kwargs``: its ``path_names``,
+    measured by :func:`jaxstyle.output.quality.run` (``kwargs``: its ``path_names``,
     ``seconds`` ...). ``jaxstyle demo --model lpn-film`` and ``experiments/quality.py`` use it."""
     from jaxstyle.output import quality
 
     chars = characters(loaded, styles=styles, new_styles=new_styles)
     subjects = [quality.subject(c, "base" if i < len(styles) else "few-shot", loaded.model.name)
                 for i, c in enumerate(chars)]
-    model = loaded.model
-    return quality.run_lpn(model.params, model.config, loaded.data.base.normalisers(), subjects, loaded.data.skeleton,
-                           **kwargs)
-
-
-def rollout_summary(result: SynthesisResult, num_characters: int, num_paths: int) -> str:
-    """One line: characters x paths, frames and speed of the batched rollout (as the 2018 path's)."""
-    return (f"{num_characters} characters x {num_paths} paths, {result.frames:,} frames in one batched rollout: "
-            f"{result.seconds:.2f} s ({result.frames / max(result.seconds, 1e-9):,.0f} frames/s)")
+    return quality.run(loaded.character_model(), subjects, loaded.data.skeleton, **kwargs)

@@ -1,9 +1,11 @@
 """Generated motion out of jaxstyle: a :class:`jaxstyle.Motion` on the source skeleton, BVH files
 (importable in Blender and other tools) and ``.npz`` arrays.
 
-A rollout of :mod:`jaxstyle.control.controller` (PFNN) or :mod:`jaxstyle.control.lpn_controller` (LPN, MANN)
-records the de-normalised network outputs. :func:`rollout_motion` decodes them with the feature
-decoders (:func:`jaxstyle.decode_pfnn`, :func:`jaxstyle.decode_lpn`): joint rotations come from
+A rollout of any :class:`jaxstyle.control.model.CharacterModel` (the PFNN of
+:mod:`jaxstyle.control.controller`, the LPN, MANN and PFNN-backbone style models of
+:mod:`jaxstyle.control.lpn_controller`) records the de-normalised network outputs, and its frames
+decode themselves (:meth:`jaxstyle.control.model.Frames.decode`: the feature decoders
+:func:`jaxstyle.decode_pfnn`, :func:`jaxstyle.decode_lpn`): joint rotations come from
 the predicted forward and up vectors, the root from the predicted root motion, and every other
 joint keeps the skeleton's bone offsets, so bone lengths are exact in the BVH (the predicted joint
 positions, which nothing ties to the skeleton, are kept in the ``.npz``). The character starts at
@@ -25,10 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxstyle.control.controller import Rollout
-from jaxstyle.control.lpn_controller import LPNRollout
-from jaxstyle.data.lpn_features import decode_lpn
-from jaxstyle.data.pfnn_features import decode_pfnn, output_contacts
+from jaxstyle.control.model import Frames
 from jaxstyle.motion import Motion
 from jaxstyle.motion.bvh import write_bvh
 from jaxstyle.output import footlock
@@ -40,7 +39,7 @@ def _check_single(rollout) -> None:
                          "(take one with jax.tree.map(lambda v: v[i], rollout))")
 
 
-def rollout_motion(rollout: Rollout | LPNRollout, skeleton: Motion, *, fps: float | None = None) -> Motion:
+def rollout_motion(rollout: Frames, skeleton: Motion, *, fps: float | None = None) -> Motion:
     """The :class:`Motion` of one character's rollout on ``skeleton`` (the training data's), at
     ``fps`` (default the skeleton's)."""
     _check_single(rollout)
@@ -48,25 +47,21 @@ def rollout_motion(rollout: Rollout | LPNRollout, skeleton: Motion, *, fps: floa
     if not np.isfinite(outputs).all():
         bad = int(np.flatnonzero(~np.isfinite(outputs).all(axis=1))[0])
         raise ValueError(f"the rollout's outputs are not finite from frame {bad} on; nothing to export")
-    if isinstance(rollout, LPNRollout):
-        motion = decode_lpn(outputs, skeleton)
-    elif isinstance(rollout, Rollout):
-        motion = decode_pfnn(outputs, skeleton)[0]
-    else:
-        raise TypeError(f"expected a controller Rollout or an LPNRollout, got {type(rollout).__name__}")
+    if not isinstance(rollout, Frames):
+        raise TypeError(f"expected a model's rollout frames (jaxstyle.control.model.Frames), got "
+                        f"{type(rollout).__name__}")
+    motion = rollout.decode(skeleton)
     return motion.replace(fps=float(fps or skeleton.fps), source=None)
 
 
-def network_contacts(rollout: Rollout | LPNRollout, num_joints: int) -> np.ndarray | None:
-    """The contact labels a rollout's network predicted: the LPN's two foot labels ``(T, 2)``, the
-    heel and toe labels ``(T, 4)`` of a PFNN with the 2018 layout's contact outputs
-    (:func:`jaxstyle.data.pfnn_features.output_contacts`), ``None`` for the paper's PFNN layout."""
-    if isinstance(rollout, LPNRollout):
-        return np.asarray(rollout.contacts, dtype=np.float64)
-    return output_contacts(np.asarray(rollout.outputs), num_joints)
+def network_contacts(rollout: Frames, num_joints: int) -> np.ndarray | None:
+    """The contact labels a rollout's network predicted (:meth:`jaxstyle.control.model.Frames.predicted_contacts`):
+    the LPN's two foot labels ``(T, 2)``, the heel and toe labels ``(T, 4)`` of a PFNN with the
+    2018 layout's contact outputs, ``None`` for the paper's PFNN layout."""
+    return rollout.predicted_contacts(num_joints)
 
 
-def lock_feet(motion: Motion, rollout: Rollout | LPNRollout | None = None, *,
+def lock_feet(motion: Motion, rollout: Frames | None = None, *,
               config: footlock.FootLockConfig | None = None, skeleton: Motion | None = None,
               floor_2x2: np.ndarray | None = None) -> footlock.LockedMotion:
     """``motion`` with its feet locked while planted (:func:`jaxstyle.output.footlock.lock_motion`):
@@ -80,7 +75,7 @@ def lock_feet(motion: Motion, rollout: Rollout | LPNRollout | None = None, *,
     return footlock.lock_motion(motion, contacts, config=config, floor_2x2=floor_2x2)
 
 
-def save_rollout(path: str | os.PathLike, rollout: Rollout | LPNRollout, skeleton: Motion, *,
+def save_rollout(path: str | os.PathLike, rollout: Frames, skeleton: Motion, *,
                  foot_lock: bool = True, fps: float | None = None, motion: Motion | None = None) -> dict[str, Path]:
     """Write ``<path>.bvh`` (the decoded motion, feet locked with ``foot_lock``, :func:`lock_feet`; or ``motion`` when
     given, e.g. one already post-processed) and ``<path>.npz`` (the network's global joint
@@ -95,11 +90,7 @@ def save_rollout(path: str | os.PathLike, rollout: Rollout | LPNRollout, skeleto
             motion = lock_feet(motion, rollout, skeleton=skeleton).motion
     bvh_path, npz_path = base.with_suffix(".bvh"), base.with_suffix(".npz")
     write_bvh(motion, bvh_path)
-    arrays = {"positions": rollout.positions, "origin": rollout.origin, "yaw": rollout.yaw,
-              "outputs": rollout.outputs,
-              "phase": rollout.phases if isinstance(rollout, LPNRollout) else rollout.phase}
-    if isinstance(rollout, LPNRollout):
-        arrays["contacts"] = rollout.contacts
+    arrays = rollout.arrays()
     np.savez(npz_path, **{k: np.asarray(v) for k, v in arrays.items()}, fps=np.float64(motion.fps),
              names=np.array(skeleton.names), parents=np.asarray(skeleton.parents))
     return {"bvh": bvh_path, "npz": npz_path}

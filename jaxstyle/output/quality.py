@@ -2,8 +2,9 @@
 six protocol paths, measured as the user sees it, beside the same figures of its style's capture.
 
 Per (character, path), from ONE batched closed-loop rollout with the path-following law of
-:mod:`jaxstyle.control.loop` (:func:`run` for the 2018 PFNN with style adapters, :func:`run_lpn` for
-the 2022 style models; both measured by the one function :func:`measure`):
+:mod:`jaxstyle.control.loop` (:func:`run`, for any :class:`jaxstyle.control.model.CharacterModel`:
+the 2018 PFNN with style adapters, the 2022 style models; measured by the one function
+:func:`measure`):
 
 * foot skating (:func:`jaxstyle.output.metrics.foot_skating`) of the network's own joints, of the
   exported skeleton (the BVH's forward kinematics: bone lengths exact, :mod:`jaxstyle.output.export`)
@@ -40,17 +41,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control import controller, loop, lpn_controller, paths
+from jaxstyle.control import loop, paths
+from jaxstyle.control.controller import PFNNModel
+from jaxstyle.control.model import CharacterModel, Frames, rollout
 from jaxstyle.data import datasets
-from jaxstyle.data.lpn_features import LPNLayout, end_effector_columns
+from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.labels.contacts import FootJoints, body_units_per_meter, estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.nn import pfnn
-from jaxstyle.output import export, footlock, lpn_synthesis, metrics
-from jaxstyle.output.synthesis import own_speed, stack_trees, start_states, style_rows
+from jaxstyle.output import drive, export, footlock, metrics
+from jaxstyle.output.drive import Character
 
 PROTOCOL_PATHS = ("straight", "circle", "zigzag", "stop_and_go", "speed_ramp", "waypoints")
 FOLLOW_PATHS = ("straight", "circle", "zigzag")  # the paths of the 0.3 m final-error target
@@ -63,53 +66,31 @@ MODEL_2018 = "2018 PFNN"
 
 @dataclasses.dataclass(frozen=True)
 class Subject:
-    """One character: ``title``, ``kind`` (``"base"`` or ``"few-shot"``), its ``adapter`` (the 2018
-    PFNN's residual adapter; for a 2022 model the runtime style that
-    :func:`jaxstyle.nn.style_models.model_apply` takes: a FiLM vector, one-hot row or adapter, as in
-    :class:`jaxstyle.output.lpn_synthesis.LPNCharacter`), the ``dataset`` + ``style`` whose rows give
-    its start pose, its own speed and its capture, and the ``model`` it belongs to."""
+    """One character: ``title``, ``kind`` (``"base"`` or ``"few-shot"``), its style ``conditioning``
+    (what its model's step takes: the 2018 PFNN's residual adapter, a 2022 model's FiLM vector,
+    one-hot row or adapter), the ``dataset`` + ``style`` whose rows give its start pose, its own
+    speed and its capture, and the name of the ``model`` it belongs to."""
 
     title: str
     kind: str
-    adapter: Any
+    conditioning: Any
     dataset: datasets.Dataset
     style: str
     model: str = MODEL_2018
 
 
-def subject(character, kind: str, model: str = MODEL_2018) -> Subject:
-    """The :class:`Subject` of a synthesis character: a 2018
-    :class:`jaxstyle.output.synthesis.Character` (its ``adapter``) or a 2022
-    :class:`jaxstyle.output.lpn_synthesis.LPNCharacter` (its ``runtime`` style)."""
-    style = character.runtime if isinstance(character, lpn_synthesis.LPNCharacter) else character.adapter
-    return Subject(character.title, kind, style, character.dataset, character.style, model)
+def subject(character: Character, kind: str, model: str = MODEL_2018) -> Subject:
+    """The :class:`Subject` of a synthesis :class:`jaxstyle.output.drive.Character`."""
+    return Subject(character.title, kind, character.conditioning, character.dataset, character.style, model)
 
 
 Drawn = dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]
 
 
-def _drive(subjects: Sequence[Subject], skeleton: Motion, initial, rollout_batch, *, speed_of,
-           path_names: Sequence[str], seconds: float, follow_seconds: float | None
-           ) -> tuple[list[dict], Drawn]:
-    """What :func:`run` and :func:`run_lpn` share: the start states
-    (:func:`jaxstyle.output.synthesis.start_states`, the style's own median speed by ``speed_of``,
-    ``initial(subject, dataset, row)``), the path signals and controls with the
-    path-following law, ONE batched rollout (``rollout_batch(which, states, controls)``, ``which``
-    the subject of each rollout), then :func:`measure_rollouts`."""
-    upm, fps = estimate_units_per_meter(skeleton), skeleton.fps
-    starts, speeds = start_states(subjects, upm, fps, initial, speed_of=speed_of)
-    pairs = [(i, p) for i in range(len(subjects)) for p in path_names]
-    signals = [paths.named(p, seconds, speeds[i], units_per_meter=upm, fps=fps) for i, p in pairs]
-    which = [i for i, _ in pairs]
-    out = rollout_batch(which, stack_trees([starts[i] for i in which]),
-                        stack_trees([loop.signal_controls(sig, follow_seconds=follow_seconds) for sig in signals]))
-    return measure_rollouts(subjects, pairs, signals, out, skeleton, speeds)
-
-
 def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str]], signals: Sequence[paths.PathSignal],
                      rollouts, skeleton: Motion, speeds: Sequence[float]
                      ) -> tuple[list[dict], Drawn]:
-    """:func:`measure` each rollout of a batch of either controller (leading axis ``len(pairs)``,
+    """:func:`measure` each rollout of a batch of any model (leading axis ``len(pairs)``,
     ``pairs[k] = (subject index, path name)`` along ``signals[k]``), then one :func:`capture_row`
     per subject. Returns the rows and, per ``(title, path)``, the joint positions of the exported
     skeleton after foot locking (what the BVH holds; the network's joints for a diverged rollout)
@@ -130,56 +111,19 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
     return results, drawn
 
 
-def run(params: dict, normalisers: tuple[Normaliser, Normaliser], subjects: Sequence[Subject], skeleton: Motion, *,
+def run(model: CharacterModel, subjects: Sequence[Subject], skeleton: Motion, *,
         path_names: Sequence[str] = PROTOCOL_PATHS, seconds: float = SECONDS,
-        follow_seconds: float | None = loop.FOLLOW_SECONDS, blend_bias: float = 1.5
-        ) -> tuple[list[dict], Drawn]:
-    """Drive every subject (2018 PFNN adapters) along every path at its style's own median speed
-    (one batched rollout, :func:`jaxstyle.control.controller.rollout_batch`) and :func:`measure`
-    each; then one :func:`capture_row` per subject. Returns the rows and, per ``(title, path)``, the
-    network's joint positions and the path's ideal positions (previews)."""
-    x_norm, y_norm = normalisers
-
-    def initial(_, ds, row):
-        return controller.initial_state(ds.inputs[row], float(ds.phases[row, 0]), skeleton.num_joints)
-
-    def rollout_batch(which, states, controls):
-        adapters = pfnn.stack_adapters([subjects[i].adapter for i in which])
-        return controller.rollout_batch(params, adapters, x_norm, y_norm, states, controls, blend_bias=blend_bias)
-
-    return _drive(subjects, skeleton, initial, rollout_batch, speed_of=own_speed, path_names=path_names,
-                  seconds=seconds, follow_seconds=follow_seconds)
-
-
-def run_lpn(params: dict, config, normalisers: tuple[Normaliser, Normaliser], subjects: Sequence[Subject],
-            skeleton: Motion, *, path_names: Sequence[str] = PROTOCOL_PATHS, seconds: float = SECONDS,
-            follow_seconds: float | None = loop.FOLLOW_SECONDS, blend_bias: float = 1.5
-            ) -> tuple[list[dict], Drawn]:
-    """:func:`run` for a trained 2022 style model (Mason, Starke & Komura 2022, section 4.4): the
-    subjects' ``adapter`` is their runtime style, driven by
-    :func:`jaxstyle.control.lpn_controller.rollout_batch` from a real pose of the style with its
-    local phases, at the style's own speed (:func:`jaxstyle.output.lpn_synthesis.own_speed`), as
-    :func:`jaxstyle.output.lpn_synthesis.synthesize` starts its characters; the same paths, the
-    same path-following law and the same :func:`measure` as the 2018 characters. ``config``: the
-    model's :class:`jaxstyle.nn.style_models.StyleModelConfig`; ``normalisers``: its training
-    data's. Every backbone: the MANN's gating columns come from ``skeleton``; the PFNN backbone's
-    global phase starts at the row's and advances at the rate
-    :func:`jaxstyle.control.lpn_controller.phase_ratio` fits for the subject's style and runtime
-    style, as :func:`jaxstyle.output.lpn_synthesis.synthesize` starts it."""
-    x_norm, y_norm = normalisers
-    num_bones = LPNLayout.of_inputs(subjects[0].dataset.inputs.shape[1]).num_bones
-    gate_columns = end_effector_columns(skeleton) if config.backbone == "mann" else None
-
-    def initial(s, ds, row):
-        return lpn_synthesis.start_state(ds, row, num_bones, lpn_synthesis.style_phase_ratio(
-            params, config, s.adapter, normalisers, ds, s.style, gate_columns=gate_columns))
-
-    def rollout_batch(which, states, controls):
-        return lpn_controller.rollout_batch(params, config, stack_trees([subjects[i].adapter for i in which]), x_norm,
-                                            y_norm, states, controls, gate_columns=gate_columns, blend_bias=blend_bias)
-
-    return _drive(subjects, skeleton, initial, rollout_batch, speed_of=lpn_synthesis.own_speed,
-                  path_names=path_names, seconds=seconds, follow_seconds=follow_seconds)
+        follow_seconds: float | None = loop.FOLLOW_SECONDS) -> tuple[list[dict], Drawn]:
+    """Drive every subject of ``model`` (any :class:`jaxstyle.control.model.CharacterModel`: the
+    2018 PFNN with style adapters, a 2022 style model) along every path at its style's own median
+    speed (one batched rollout, :func:`jaxstyle.output.drive.drive`, with the path-following law of
+    time constant ``follow_seconds``) and :func:`measure` each; then one :func:`capture_row` per
+    subject. Returns the rows and, per ``(title, path)``, the exported skeleton's joint positions
+    and the path's ideal positions (previews)."""
+    driven = drive.drive(model, subjects, path_names=path_names, seconds=seconds,
+                         units_per_meter=estimate_units_per_meter(skeleton), fps=skeleton.fps,
+                         follow_seconds=follow_seconds)
+    return measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton, driven.speeds)
 
 
 class Exported(NamedTuple):
@@ -226,10 +170,10 @@ def pinned_feet(motion: Motion, rollout) -> Motion:
     return footik.fix_foot_sliding(motion, contacts, blend_frames=5, pin_toes=True)
 
 
-def exported(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: Motion,
+def exported(rollout: Frames, skeleton: Motion,
              floor_2x2: np.ndarray | None = None) -> Exported:
-    """:class:`Exported` of one character's rollout of either controller (the network's joints are
-    the skeleton's: an LPN rollout's extra hand points are left out). ``floor_2x2``: the skeleton's
+    """:class:`Exported` of one character's rollout of any model (the network's joints are the
+    skeleton's: an LPN rollout's extra hand points are left out). ``floor_2x2``: the skeleton's
     planted heights (:func:`jaxstyle.output.footlock.skeleton_floor`, computed when omitted; pass
     it to measure many rollouts on one skeleton)."""
     floor = footlock.skeleton_floor(skeleton) if floor_2x2 is None else np.asarray(floor_2x2)
@@ -249,10 +193,10 @@ LOCK_FIGURES = ("steps_per_s", "stance_fraction", "slide_per_contact_m", "steps_
 ``steps_per_s_bvh`` before locking)."""
 
 
-def measure(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: Motion, signal: paths.PathSignal, *,
+def measure(rollout: Frames, skeleton: Motion, signal: paths.PathSignal, *,
             units_per_meter: float, out: Exported | None = None) -> dict:
-    """The figures of one character's rollout along ``signal`` (see the module docstring), of either
-    controller: the network's joints, the exported skeleton (the BVH's,
+    """The figures of one character's rollout along ``signal`` (see the module docstring), of any
+    model: the network's joints, the exported skeleton (the BVH's,
     :func:`jaxstyle.output.export.rollout_motion` decodes both models' outputs) and the same after
     foot locking (:func:`jaxstyle.output.export.lock_feet`, the network's own contacts starting
     locks when it predicts them): skating of all three, stepping of the locked skeleton
@@ -309,7 +253,7 @@ def measure(rollout: controller.Rollout | lpn_controller.LPNRollout, skeleton: M
 
 def capture_clip(subject: Subject, fps: float = 60.0) -> Motion:
     """The style's capture: the first clip of its start rows
-    (:func:`jaxstyle.output.synthesis.style_rows`: a forward walk, else a forward run, of the style;
+    (:func:`jaxstyle.data.datasets.style_rows`: a forward walk, else a forward run, of the style;
     never a backward or sideways take while it has a forward one), as the paths move forward."""
     return datasets.load_clip(capture_spec(subject.dataset, subject.style), fps=fps)
 
@@ -582,7 +526,7 @@ def diagnose(params: dict, normalisers: tuple[Normaliser, Normaliser], subject: 
     rows = _one_clip_rows(ds, subject.style)
     x = jnp.asarray(x_norm.apply(ds.inputs[rows]), jnp.float32)
     y_pred = y_norm.invert(np.asarray(pfnn.pfnn_apply(params, x, jnp.asarray(ds.phases[rows, 0]),
-                                                      adapter=subject.adapter), dtype=np.float64))
+                                                      adapter=subject.conditioning), dtype=np.float64))
     y_real = np.asarray(ds.outputs[rows], dtype=np.float64)
     hybrid = y_real.copy()
     hybrid[:, g["joint_position"]] = y_pred[:, g["joint_position"]]
@@ -594,19 +538,20 @@ def diagnose(params: dict, normalisers: tuple[Normaliser, Normaliser], subject: 
 
     out["capture_rows"] = q(outputs_positions(y_real, J))
     out["teacher_forced"] = q(outputs_positions(hybrid, J))
-    speed = own_speed(ds, style_rows(ds, subject.style), upm, fps)
+    model = PFNNModel.create(params, normalisers, J)
     start_rows = style_rows(ds, subject.style)
-    start = controller.start_row(ds.inputs, speed, units_per_meter=upm, rows=start_rows, fps=fps)
-    state = controller.initial_state(ds.inputs[start], float(ds.phases[start, 0]), J)
+    speed = model.own_speed(ds, start_rows, upm, fps)
+    start = loop.start_row(ds.inputs, speed, units_per_meter=upm, rows=start_rows, fps=fps)
+    state = model.initial_state(ds, start)
     blending = {}
     closed = None
     for follow in (None, loop.FOLLOW_SECONDS):
         for bias in (0.5, 1.5, 3.0):
             for name in ("straight", "zigzag"):
                 sig = paths.named(name, SECONDS, speed, units_per_meter=upm, fps=fps)
-                r = jax.tree.map(np.asarray, controller.rollout(
-                    params, subject.adapter, x_norm, y_norm, state, loop.signal_controls(sig, follow_seconds=follow),
-                    blend_bias=bias))
+                r = jax.tree.map(np.asarray, rollout(
+                    model.replace(blend_bias=bias), subject.conditioning, state,
+                    loop.signal_controls(sig, follow_seconds=follow)))
                 err = np.linalg.norm(r.origin - sig.positions, axis=-1)[-1] / upm
                 skate = metrics.foot_skating(r.positions, skeleton, fps, units_per_meter=upm)
                 blending[f"{name}, bias {bias:g}, {'follow' if follow else 'open loop'}"] = (float(err), skate)

@@ -1,15 +1,17 @@
 """Drive styled characters along user paths and write what they did: GIF, BVH, quality figures.
 
-The runtime of Mason et al. 2018 section 7.1 (the PFNN with a style's residual adapter in the
-loop) for several (style, path) characters at once: every character is generated in ONE batched,
-jitted ``lax.scan`` (:func:`jaxstyle.control.controller.rollout_batch`, base weights broadcast), each
+The runtime of both papers (Mason et al. 2018 section 7.1, the PFNN with a style's residual
+adapter in the loop; Mason, Starke & Komura 2022 section 4.4, a style model with a FiLM vector, a
+one-hot row or an adapter) for several (style, path) characters of any
+:class:`jaxstyle.control.model.CharacterModel` at once: every character is generated in ONE
+batched, jitted ``lax.scan`` (:func:`jaxstyle.output.drive.drive`, the weights broadcast), each
 starting from a real pose of its own style chosen to match the requested speed. Then, per path, a
 GIF of the exported skeletons side by side (:mod:`jaxstyle.output.preview`), per (style, path) a BVH
 (feet locked while planted, :mod:`jaxstyle.output.footlock`, unless ``foot_lock=False``) and an
 ``.npz`` (:mod:`jaxstyle.output.export`), and a table of :mod:`jaxstyle.output.metrics` figures beside
 those of real motion of each style: of the network's own joints, and of the exported skeleton (the
-BVH's, before and after foot locking) by the
-quality benchmark's :func:`jaxstyle.output.quality.measure`, so what a user sees in Blender is measured.
+BVH's, before and after foot locking) by the quality benchmark's
+:func:`jaxstyle.output.quality.measure`, so what a user sees in Blender is measured.
 
 Used by ``jaxstyle synthesize`` / ``jaxstyle demo`` (:mod:`jaxstyle.cli`).
 """
@@ -18,38 +20,26 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import time
+import os
 from pathlib import Path
-from typing import NamedTuple, Sequence
+from typing import Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control import controller, paths
+from jaxstyle.control.model import CharacterModel
 from jaxstyle.data import datasets
-from jaxstyle.data.normalise import Normaliser
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
-from jaxstyle.nn import pfnn
-from jaxstyle.output import export, footlock, metrics, preview
-
-
-class Character(NamedTuple):
-    """One style to drive: its ``title`` (GIF panels, tables), a file-safe ``label``, its PFNN
-    ``adapter``, and the ``dataset`` + ``style`` whose rows give its start pose and own speed."""
-
-    title: str
-    label: str
-    adapter: dict
-    dataset: datasets.Dataset
-    style: str
+from jaxstyle.output import drive, export, footlock, metrics, preview, quality
+from jaxstyle.output.drive import Character
 
 
 @dataclasses.dataclass
 class SynthesisResult:
     """``rows``: one :class:`jaxstyle.output.metrics.MotionQuality` row per (character, path) and per real
-    clip; ``files``: everything written; ``seconds``: rollout time (compiled) and ``frames``."""
+    clip; ``files``: everything written; ``seconds``: rollout time (compiled) and ``frames``;
+    ``speeds``: each character's walking speed (m/s) by title."""
 
     rows: list[dict]
     files: list[Path]
@@ -57,65 +47,24 @@ class SynthesisResult:
     frames: int
     speeds: dict[str, float]
 
-
-FORWARD_GAITS = ("FW", "FR")
-"""The gaits a character starts from and takes its own speed from, in order of preference: a
-forward walk, else a forward run (the paths move forward)."""
-
-
-def style_rows(dataset: datasets.Dataset, style: str, gaits: Sequence[str] = FORWARD_GAITS) -> np.ndarray:
-    """Training rows of ``style``, only those of its clips of the first of ``gaits`` it has (all its
-    rows when it has none of them)."""
-    rows = dataset.rows_of_style(style, "train")
-    if len(rows) == 0:
-        rows = dataset.rows_of_style(style)
-    clip_gaits = np.array([dataset.specs[c].gait for c in dataset.clip[rows]])
-    for gait in gaits:
-        if (clip_gaits == gait).any():
-            return rows[clip_gaits == gait]
-    return rows
+    def summary(self, num_characters: int, num_paths: int) -> str:
+        """One line: characters x paths, frames and speed of the batched rollout."""
+        return (f"{num_characters} characters x {num_paths} paths, {self.frames:,} frames in one batched rollout: "
+                f"{self.seconds:.2f} s ({self.frames / max(self.seconds, 1e-9):,.0f} frames/s)")
 
 
-def own_speed(dataset: datasets.Dataset, rows: np.ndarray, units_per_meter: float, fps: float = 60.0) -> float:
-    """The median ground speed (m/s) of the character over ``rows`` (its per-frame root motion)."""
-    step = dataset.outputs[rows, :2]  # root velocity, units per frame, in the character frame
-    return float(np.median(np.linalg.norm(step, axis=1)) * fps / units_per_meter)
-
-
-def stack_trees(items):
-    """Pytrees of the same structure stacked leaf by leaf on a new leading axis (NumPy or JAX
-    leaves; the batched rollouts' states, controls and runtime styles)."""
-    return jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *items)
-
-
-def start_states(characters: Sequence, units_per_meter: float, fps: float, initial, *,
-                 speed: float | None = None, speed_of=own_speed) -> tuple[list, list[float]]:
-    """Per character (anything with ``dataset`` and ``style``): its walking speed (``speed``, or its
-    style's own, ``speed_of(dataset, rows, units_per_meter, fps)``) and a start state
-    ``initial(character, dataset, row)`` at a frame of its style moving near that speed
-    (:func:`jaxstyle.control.loop.start_row`). Both controllers' synthesis and the quality benchmark
-    start their characters this way."""
-    starts, speeds = [], []
-    for c in characters:
-        rows = style_rows(c.dataset, c.style)
-        v = speed_of(c.dataset, rows, units_per_meter, fps) if speed is None else float(speed)
-        row = controller.start_row(c.dataset.inputs, v, units_per_meter=units_per_meter, rows=rows, fps=fps)
-        starts.append(initial(c, c.dataset, row))
-        speeds.append(v)
-    return starts, speeds
-
-
-def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], characters: Sequence[Character],
-               skeleton: Motion, out: str | Path, *, path_names: Sequence[str] = ("circle",), seconds: float = 8.0,
-               speed: float | None = None, foot_lock: bool = True, gif: bool = True, mp4: bool = False,
-               every: int = 2, contact_sheet: bool = False, reference: bool = True,
-               progress: bool = False) -> SynthesisResult:
+def synthesize(model: CharacterModel, characters: Sequence[Character], skeleton: Motion, out: str | os.PathLike, *,
+               path_names: Sequence[str] = ("circle",), seconds: float = 8.0, speed: float | None = None,
+               foot_lock: bool = True, gif: bool = True, mp4: bool = False, every: int = 2,
+               contact_sheet: bool = False, reference: bool = True, progress: bool = False) -> SynthesisResult:
     """Drive every character along every path and write the results under ``out``.
 
     Args:
-      params, normalisers: the base PFNN and its (input, output) statistics.
-      characters: the styles (:class:`Character`); CP adapters of different ranks are padded to
-        the largest (:func:`jaxstyle.nn.pfnn.pad_rank`), which changes nothing they compute.
+      model: any :class:`jaxstyle.control.model.CharacterModel` (the 2018
+        :class:`jaxstyle.control.controller.PFNNModel`, a 2022
+        :class:`jaxstyle.control.lpn_controller.StyleNetModel`).
+      characters: the styles (:class:`jaxstyle.output.drive.Character`, their conditionings of one
+        kind for the model).
       skeleton: a clip of the training skeleton (bone lengths, fps, units).
       path_names: any of :data:`jaxstyle.control.paths.PATHS`; ``seconds`` long each.
       speed: m/s for every character; ``None``: each walks at its style's own median speed.
@@ -126,52 +75,30 @@ def synthesize(params: dict, normalisers: tuple[Normaliser, Normaliser], charact
       reference: add the quality figures of one real clip per style to the table.
 
     Writes ``<path>.gif`` per path, ``bvh/<label>_<path>.bvh`` and ``.npz`` per character and
-    path, ``contact_sheet.png`` if asked, and ``quality.csv``.
+    path, ``contact_sheet.png`` if asked, and ``quality.csv`` (:func:`write_results`).
     """
-    if not characters:
-        raise ValueError("no characters to drive")
-    unknown = [p for p in path_names if p not in paths.PATHS]
-    if unknown or not path_names:
-        raise KeyError(f"unknown path(s) {unknown}; known: {', '.join(paths.PATHS)}")
-    if seconds <= 0:
-        raise ValueError(f"seconds must be positive, got {seconds}")
-    out = Path(out)
-    x_norm, y_norm = normalisers
-    upm = estimate_units_per_meter(skeleton)
-    fps = skeleton.fps
-    stacked = pfnn.stack_adapters([c.adapter for c in characters])
-    starts, speeds = start_states(characters, upm, fps, lambda _, ds, row: controller.initial_state(
-        ds.inputs[row], float(ds.phases[row, 0]), skeleton.num_joints), speed=speed)
-    pairs = [(s, p) for s in range(len(characters)) for p in path_names]
-    signals = [paths.named(p, seconds, speeds[s], units_per_meter=upm, fps=fps) for s, p in pairs]
-    which = np.asarray([s for s, _ in pairs])
-    args = (params, jax.tree.map(lambda v: v[which], stacked), x_norm, y_norm,
-            stack_trees([starts[s] for s, _ in pairs]),
-            stack_trees([controller.signal_controls(sig) for sig in signals]))
-    jax.block_until_ready(controller.rollout_batch(*args))  # compile
-    t0 = time.perf_counter()
-    rollouts = jax.block_until_ready(controller.rollout_batch(*args))
-    elapsed = time.perf_counter() - t0
-
-    rows, files = write_results(out, characters, pairs, signals, rollouts, skeleton, foot_lock=foot_lock, gif=gif,
-                                mp4=mp4, every=every, contact_sheet=contact_sheet, reference=reference,
-                                progress=progress)
-    return SynthesisResult(rows, files, elapsed, len(pairs) * int(rollouts.positions.shape[1]),
-                           dict(zip([c.title for c in characters], speeds, strict=True)))
+    driven = drive.drive(model, characters, path_names=path_names, seconds=seconds,
+                         units_per_meter=estimate_units_per_meter(skeleton), fps=skeleton.fps, speed=speed,
+                         timed=True)
+    rows, files = write_results(out, characters, driven.pairs, driven.signals, driven.rollouts, skeleton,
+                                foot_lock=foot_lock, gif=gif, mp4=mp4, every=every, contact_sheet=contact_sheet,
+                                reference=reference, progress=progress)
+    return SynthesisResult(rows, files, driven.seconds, len(driven.pairs) * int(driven.rollouts.positions.shape[1]),
+                           dict(zip([c.title for c in characters], driven.speeds, strict=True)))
 
 
-def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[int, str]], signals: Sequence,
+def write_results(out: str | os.PathLike, characters: Sequence, pairs: Sequence[tuple[int, str]], signals: Sequence,
                   rollouts, skeleton: Motion, *, foot_lock: bool = True, gif: bool = True, mp4: bool = False,
                   every: int = 2, contact_sheet: bool = False, reference: bool = True,
                   progress: bool = False) -> tuple[list[dict], list[Path]]:
-    """What both papers' syntheses write, from a batched rollout of either controller (a
-    :class:`jaxstyle.control.controller.Rollout` or a :class:`jaxstyle.control.lpn_controller.LPNRollout`,
-    leading axis ``len(pairs)``): per path a GIF (and MP4, contact sheet) of the exported skeleton
-    (after foot locking with ``foot_lock``: what the BVH files hold), per (character, path) the
+    """What a synthesis writes, from a batched rollout of any model (its
+    :class:`jaxstyle.control.model.Frames`, leading axis ``len(pairs)``): per path a GIF (and MP4,
+    contact sheet) of the exported skeleton (after foot locking with ``foot_lock``: what the BVH
+    files hold), per (character, path) the
     :mod:`jaxstyle.output.metrics` row, the BVH and ``.npz``, the real clips' rows, ``quality.csv``.
 
-    ``characters``: anything with ``title``, ``label``, ``dataset`` and ``style`` (:class:`Character`,
-    :class:`jaxstyle.output.lpn_synthesis.LPNCharacter`); ``pairs``: ``(character index, path name)``
+    ``characters``: anything with ``title``, ``label``, ``dataset`` and ``style``
+    (:class:`jaxstyle.output.drive.Character`); ``pairs``: ``(character index, path name)``
     of each rollout; ``signals``: the :class:`jaxstyle.control.paths.PathSignal` of each pair. The
     metrics read the skeleton's joints (the LPN's extra hand points are left out), with the same
     functions for both models: :func:`jaxstyle.output.metrics.motion_quality` of the network's joints
@@ -180,8 +107,6 @@ def write_results(out: str | Path, characters: Sequence, pairs: Sequence[tuple[i
     skating of the BVH before and after foot locking, stepping after it, how far the lock moved a
     foot, how deep a foot goes below the floor, its bone error, the largest network-to-BVH joint
     distance, heading error, time to stop, ankle jerk). Returns the quality rows and the files written."""
-    from jaxstyle.output import quality  # the benchmark builds on this module (start states)
-
     out = Path(out)
     upm = estimate_units_per_meter(skeleton)
     fps = skeleton.fps
@@ -248,6 +173,7 @@ clips' rows have the figures of their own skeleton there."""
 
 def write_quality(rows: list[dict], path: Path) -> Path:
     """The quality rows as CSV (columns: the union of the rows' keys, blank where absent)."""
+    path = Path(path)
     fields = list(dict.fromkeys(k for r in rows for k in r))
     with open(path, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=fields, restval="")
@@ -279,12 +205,3 @@ def quality_table(rows: list[dict]) -> list[str]:
                      f"| {_f(g('path_error_mean_m'))} / {_f(g('path_error_final_m'))} | {_f(g('stop_time_s'))} "
                      f"| {_f(g('jitter_m_s3'), 0)} |")
     return lines
-
-
-def blend_character(a: Character, b: Character, weights: Sequence[float] = (0.5, 0.5)) -> Character:
-    """A character in a blend of two styles' adapters (:func:`jaxstyle.nn.pfnn.blend_adapters`: exact for
-    CP adapters, whose ranks add), starting like ``a``."""
-    stacked = pfnn.stack_adapters([a.adapter, b.adapter])
-    w = np.asarray(weights, dtype=np.float64)
-    name = " + ".join(f"{100 * wi:.0f}% {c.label}" for wi, c in zip(w, (a, b), strict=True))
-    return Character(name, f"blend_{a.label}_{b.label}", pfnn.blend_adapters(stacked, w), a.dataset, a.style)

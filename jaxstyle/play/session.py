@@ -11,8 +11,9 @@ The 2018 runtime is the PFNN controller of Mason et al. 2018 section 7.1 (Holden
 :mod:`jaxstyle.control.controller`): each frame the user's steering becomes one row of
 :class:`jaxstyle.control.loop.Controls` (the desired ground displacement and facing at the six
 future samples, 0 .. 50 frames ahead), and all characters advance by ONE frame in one jitted call
-(``jit(vmap(step))`` over characters, the base weights compiled in as constants, as
-:func:`jaxstyle.control.controller.step_fn` does for one character).
+(``jit(vmap(step))`` over characters, :func:`jaxstyle.control.model.batched_step_fn`, the base
+weights compiled in as constants, as :func:`jaxstyle.control.model.step_fn` does for one
+character).
 
 Styles are CP adapters (base styles, the few-shot sweep's chosen adapters, styles learned live).
 A 2- or 3-way blend is the exact CP adapter of the summed rank
@@ -25,7 +26,7 @@ The 2022 runtime (Mason, Starke & Komura 2022 section 4.4) is the controller of
 :mod:`jaxstyle.control.lpn_controller` (the same loop, the same :class:`Controls` rows with the
 same standing amount, read as that controller reads it; the network gets the local phases it
 carries, or for the PFNN backbone the global phase), ``jit(vmap(step))`` of
-:func:`jaxstyle.control.lpn_controller.model_step`, the weights compiled in as constants. Its styles
+:meth:`jaxstyle.control.lpn_controller.StyleNetModel.step`, the weights compiled in as constants. Its styles
 are FiLM vectors (the training styles' runtime vectors and the styles fine-tuned by the FiLM sweep,
 :func:`jaxstyle.mason2022.synthesis.characters`; one-hot rows or adapters for the other Table 2
 models); a blend is the weighted FiLM vector (:func:`jaxstyle.nn.style_models.blend_styles`,
@@ -52,15 +53,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control import controller, loop, lpn_controller
-from jaxstyle.control.controller import Rollout, RolloutState
-from jaxstyle.data.lpn_features import LPNLayout, end_effector_columns
+from jaxstyle.control import loop, lpn_controller
+from jaxstyle.control.controller import PFNNModel, Rollout, RolloutState
+from jaxstyle.control.lpn_controller import StyleNetModel
+from jaxstyle.control.model import batched_step_fn, stack_trees
+from jaxstyle.data.datasets import style_rows
+from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.data.pfnn_features import contact_columns
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline, selection
 from jaxstyle.mason2022 import synthesis as synthesis2022
-from jaxstyle.nn import pfnn, style_models
-from jaxstyle.output import footlock, lpn_synthesis, synthesis
+from jaxstyle.nn import pfnn
+from jaxstyle.output import footlock
 from jaxstyle.play import frame as live
 from jaxstyle.play.frame import Steering, _wrap, control_rows
 
@@ -79,18 +83,14 @@ class PlayError(pipeline.PipelineError):
 class Style:
     """A playable style: its ``name``, ``kind`` (``base``, ``few-shot``, ``learned``; a 2022
     model's ``base`` and ``fine-tuned``), the dropout ``rate`` the sweep chose for it (``None`` for
-    base styles) and its ``runtime`` form: the CP adapter (2018) or the FiLM vector ``(4 H,)`` (a
-    2022 FiLM model; a one-hot row or an adapter for the other 2022 models)."""
+    base styles) and its style ``conditioning`` (what the model's step takes): the CP adapter
+    (2018) or the FiLM vector ``(4 H,)`` (a 2022 FiLM model; a one-hot row or an adapter for the
+    other 2022 models)."""
 
     name: str
     kind: str
     rate: float | None
-    runtime: Any
-
-    @property
-    def adapter(self):
-        """The 2018 name of :attr:`runtime`."""
-        return self.runtime
+    conditioning: Any
 
     @property
     def label(self) -> str:
@@ -126,26 +126,30 @@ class PlayModel(NamedTuple):
         """Whether a style can be learned live on this model (:mod:`jaxstyle.play.learn`)."""
         return True
 
+    @property
+    def dataset(self):
+        """The training rows (start poses)."""
+        return self.base.dataset
+
+    def character_model(self, blend_bias: float = 1.5) -> PFNNModel:
+        """The base as a :class:`jaxstyle.control.model.CharacterModel`."""
+        return self.base.character_model(blend_bias=blend_bias)
+
     def batched_step(self, blend_bias: float = 1.5):
-        return batched_step(self.base, blend_bias)
+        return batched_step(self, blend_bias)
 
     def start_state(self) -> RolloutState:
         """The first style's training frame moving closest to its own speed, standing at the origin."""
-        base = self.base
-        rows = synthesis.style_rows(base.dataset, base.dataset.styles[0])
-        row = controller.start_row(base.dataset.inputs, self.speed, units_per_meter=self.units_per_meter, rows=rows,
-                                   fps=float(base.skeleton.fps))
-        return controller.initial_state(base.dataset.inputs[row], float(base.dataset.phases[row, 0]),
-                                        base.skeleton.num_joints)
+        return start_state(self)
 
     def runtime(self, styles: Sequence[Style], weights=None) -> dict:
         """One character's adapter: a style's (``weights`` ``None``) or the exact CP blend of 1-3
         styles (:func:`jaxstyle.nn.pfnn.blend_adapters`), zero-padded to ``MAX_BLEND`` times the
         base's rank (:func:`jaxstyle.nn.pfnn.pad_rank`) so every style and blend has one shape."""
         if weights is None:
-            adapter = styles[0].runtime
+            adapter = styles[0].conditioning
         else:
-            adapter = pfnn.blend_adapters(pfnn.stack_adapters([s.runtime for s in styles]), np.asarray(weights))
+            adapter = self.character_model().blend_styles([s.conditioning for s in styles], weights)
         return pfnn.pad_rank(adapter, int(self.base.model.rank) * MAX_BLEND)
 
 
@@ -182,16 +186,22 @@ class LPNPlayModel(NamedTuple):
         """The LPN layout's bones: the skeleton's joints, then the hand end sites."""
         return LPNLayout.of_inputs(self.loaded.data.base.inputs.shape[1]).num_bones
 
+    @property
+    def dataset(self):
+        """The training rows (start poses)."""
+        return self.loaded.data.base
+
+    def character_model(self, blend_bias: float = 1.5) -> StyleNetModel:
+        """The model as a :class:`jaxstyle.control.model.CharacterModel`."""
+        return self.loaded.character_model(blend_bias=blend_bias)
+
     def batched_step(self, blend_bias: float = 1.5):
-        return lpn_batched_step(self, blend_bias)
+        return batched_step(self, blend_bias)
 
     def start_state(self) -> lpn_controller.LPNState:
-        """As :meth:`PlayModel.start_state`, with that frame's local phases
-        (:func:`jaxstyle.output.lpn_synthesis.synthesize` starts its characters the same way)."""
-        ds, fps = self.loaded.data.base, float(self.skeleton.fps)
-        rows = synthesis.style_rows(ds, ds.styles[0])
-        row = loop.start_row(ds.inputs, self.speed, units_per_meter=self.units_per_meter, rows=rows, fps=fps)
-        return lpn_synthesis.start_state(ds, row, self.num_bones)  # the rate is set per character (Session.step)
+        """As :meth:`PlayModel.start_state`, with that frame's local phases (the global phase's
+        rate is set per character, :meth:`Session.step`)."""
+        return start_state(self)
 
     def runtime(self, styles: Sequence[Style], weights=None):
         """One character's runtime style: a style's (``weights`` ``None``) or the blend of 1-3
@@ -201,10 +211,9 @@ class LPNPlayModel(NamedTuple):
         ``MAX_BLEND`` times its rank as the 2018 adapters are)."""
         config = self.loaded.model.config
         if weights is None or len(styles) == 1:
-            out = styles[0].runtime
+            out = styles[0].conditioning
         else:
-            stacked = synthesis.stack_trees([s.runtime for s in styles])
-            out = style_models.blend_styles(config, stacked, jnp.asarray(weights, jnp.float32))
+            out = self.character_model().blend_styles([s.conditioning for s in styles], weights)
         if config.backbone == "pfnn" and config.modulation == "resad":
             out = pfnn.pad_rank(out, int(config.rank) * MAX_BLEND)
         return out
@@ -212,14 +221,13 @@ class LPNPlayModel(NamedTuple):
     def phase_ratio(self, styles: Sequence[Style], weights=None) -> float:
         """The PFNN backbone's global-phase rate for a character playing ``styles`` (with
         ``weights``): :func:`jaxstyle.control.lpn_controller.phase_ratio` of that runtime style on
-        the training rows of its (heaviest) style, as :func:`jaxstyle.output.lpn_synthesis.synthesize`
-        starts its characters. 1 for the LPN and MANN backbones, which do not read the global phase."""
-        m = self.loaded.model
+        the training rows of its (heaviest) style, as :func:`jaxstyle.output.synthesis.synthesize`
+        starts its characters (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.phase_ratio`).
+        1 for the LPN and MANN backbones, which do not read the global phase."""
         name = styles[0 if weights is None else int(np.argmax(weights))].name
         data = self.loaded.data
         ds = data.base if data.new is None or name in data.base.styles else data.new
-        return lpn_synthesis.style_phase_ratio(m.params, m.config, self.runtime(styles, weights),
-                                               data.base.normalisers(), ds, name)
+        return self.character_model().phase_ratio(self.runtime(styles, weights), ds, name)
 
 
 AnyPlayModel = PlayModel | LPNPlayModel
@@ -257,8 +265,8 @@ def load_model(run_dir: str | Path, *, progress: bool = False) -> PlayModel:
             for style in _sweep_styles(d, base, "learned"):
                 styles[style.name] = style
     upm = estimate_units_per_meter(base.skeleton)
-    rows = synthesis.style_rows(base.dataset, base.dataset.styles[0])
-    speed = synthesis.own_speed(base.dataset, rows, upm, base.skeleton.fps)
+    rows = style_rows(base.dataset, base.dataset.styles[0])
+    speed = PFNNModel.own_speed(base.dataset, rows, upm, base.skeleton.fps)
     return PlayModel(base, styles, upm, speed, run_dir)
 
 
@@ -298,7 +306,7 @@ def lpn_play_model(loaded: synthesis2022.Loaded, run_dir: str | Path | None = No
     model, data = loaded.model, loaded.data
     styles: dict[str, Style] = {}
     for c in synthesis2022.characters(loaded, styles=list(model.data.styles)):
-        styles[c.style] = Style(c.style, "base", None, jax.tree.map(jnp.asarray, c.runtime))
+        styles[c.style] = Style(c.style, "base", None, jax.tree.map(jnp.asarray, c.conditioning))
     chosen_path = loaded.directory / "chosen_rates.json"
     if (model.config.modulation == "film" and data.new is not None and chosen_path.is_file()
             and (loaded.directory / "finetuned_generators.npz").is_file()):
@@ -306,10 +314,11 @@ def lpn_play_model(loaded: synthesis2022.Loaded, run_dir: str | Path | None = No
         names = [n for n in chosen if n in data.new.styles and n not in styles]
         if names:
             for c in synthesis2022.characters(loaded, new_styles=names):
-                styles[c.style] = Style(c.style, "fine-tuned", float(chosen[c.style]["rate"]), jnp.asarray(c.runtime))
+                styles[c.style] = Style(c.style, "fine-tuned", float(chosen[c.style]["rate"]),
+                                        jnp.asarray(c.conditioning))
     upm = estimate_units_per_meter(data.skeleton)
-    rows = synthesis.style_rows(data.base, data.base.styles[0])
-    speed = lpn_synthesis.own_speed(data.base, rows, upm, float(data.skeleton.fps))
+    rows = style_rows(data.base, data.base.styles[0])
+    speed = StyleNetModel.own_speed(data.base, rows, upm, float(data.skeleton.fps))
     return LPNPlayModel(loaded, styles, upm, speed, Path(run_dir if run_dir is not None else loaded.directory.parent))
 
 
@@ -372,34 +381,27 @@ class Frame(NamedTuple):
 _STEPS: dict = {}
 
 
-def batched_step(base: pipeline.Base, blend_bias: float = 1.5):
-    """The jitted ``f(adapters, states, (offsets, yaw, stand)) -> (states, frames)`` advancing ``C``
-    characters by one frame (``jit(vmap(step))`` of :func:`jaxstyle.control.controller.model_step`,
-    every argument with a leading character axis; the base weights compiled in as constants). One per base: a
-    new session on the same base (another page, a reloaded run) compiles nothing again."""
-    key = (id(base.params), blend_bias)
-    if key not in _STEPS or _STEPS[key][0] is not base.params:
-        step = controller.model_step(base.params, loop.normaliser_arrays(base.normalisers[0]),
-                                     loop.normaliser_arrays(base.normalisers[1]), base.skeleton.num_joints,
-                                     blend_bias)
-        _STEPS[key] = (base.params, jax.jit(jax.vmap(step)))
+def batched_step(model: AnyPlayModel, blend_bias: float = 1.5):
+    """The jitted ``f(styles, states, (offsets, yaw, stand)) -> (states, frames)`` advancing ``C``
+    characters by one frame (:func:`jaxstyle.control.model.batched_step_fn` of the model's
+    :class:`jaxstyle.control.model.CharacterModel`, every argument with a leading character axis;
+    the weights compiled in as constants). One per network: a new session on the same model
+    (another page, a reloaded run) compiles nothing again."""
+    character = model.character_model(blend_bias)
+    key = (id(character.params), blend_bias)
+    if key not in _STEPS or _STEPS[key][0] is not character.params:
+        _STEPS[key] = (character.params, batched_step_fn(character))
     return _STEPS[key][1]
 
 
-def lpn_batched_step(model: LPNPlayModel, blend_bias: float = 1.5):
-    """The 2022 model's jitted ``f(styles, states, (offsets, yaw, stand)) -> (states, frames)``:
-    ``jit(vmap(step))`` of :func:`jaxstyle.control.lpn_controller.model_step` (the network's
-    weights and statistics compiled in as constants, the runtime style an argument; the LPN step
-    reads the offsets and yaw, not the standing amount). One per model, as :func:`batched_step`."""
-    m = model.loaded.model
-    key = ("lpn", id(m.params), blend_bias)
-    if key not in _STEPS or _STEPS[key][0] is not m.params:
-        x_norm, y_norm = model.loaded.data.base.normalisers()
-        cols = (tuple(int(c) for c in end_effector_columns(model.skeleton)) if m.config.backbone == "mann" else None)
-        step = lpn_controller.model_step(m.params, m.config, loop.normaliser_arrays(x_norm),
-                                         loop.normaliser_arrays(y_norm), cols, model.num_bones, blend_bias)
-        _STEPS[key] = (m.params, jax.jit(jax.vmap(step)))
-    return _STEPS[key][1]
+def start_state(model: AnyPlayModel):
+    """A character's start: the first style's training frame moving closest to the model's walking
+    speed, standing at the origin (:meth:`jaxstyle.control.model.CharacterModel.initial_state`)."""
+    ds = model.dataset
+    rows = style_rows(ds, ds.styles[0])
+    row = loop.start_row(ds.inputs, model.speed, units_per_meter=model.units_per_meter, rows=rows,
+                         fps=float(model.skeleton.fps))
+    return model.character_model().initial_state(ds, row)
 
 
 class Session:
@@ -632,7 +634,7 @@ class Session:
             if k not in self._runtime_of:
                 self._runtime_of[k] = self.runtime_of(c)
         padded = keys + [keys[0]] * (self._slots - len(keys))
-        self._runtimes = synthesis.stack_trees([self._runtime_of[k] for k in padded])
+        self._runtimes = stack_trees([self._runtime_of[k] for k in padded])
         if isinstance(self.model, LPNPlayModel) and self.model.loaded.model.config.backbone == "pfnn":
             for c, k in zip(self.characters, keys, strict=True):
                 if k not in self._ratios:
