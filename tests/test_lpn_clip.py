@@ -24,6 +24,7 @@ from jaxstyle.data.lpn_features import bone_points
 from jaxstyle.mason2022 import pipeline
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
+from jaxstyle.output import check as check_lib
 
 TINY = {"hidden": 8, "generator_hidden": 16, "filters": 4}
 
@@ -52,7 +53,7 @@ def model(base_data, tmp_path_factory):
 def test_choose_checked_prefers_passing_rates():
     val = np.array([[0.1, 0.2, 0.3], [0.3, 0.2, 0.1], [np.nan, 0.5, 0.4]])
     passed = np.array([[0, 1, 1], [0, 0, 0], [1, 0, 1]], bool)
-    chosen, any_pass = pipeline.choose_checked(val, passed)
+    chosen, any_pass = check_lib.choose_rates(val, passed)
     assert chosen.tolist() == [1, 2, 2] and any_pass.tolist() == [True, False, True]
 
 

@@ -14,6 +14,7 @@ from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
 from jaxstyle.mason2018 import fewshot, selection
 from jaxstyle.nn import pfnn
+from jaxstyle.output import check as check_lib
 from jaxstyle.train import scan
 from tests.test_fewshot import SMALL, _data
 
@@ -24,7 +25,7 @@ def test_choose_rates_rule():
                     [0.3, 0.2, 0.4],    # none passes -> best overall, flagged
                     [np.nan, 0.9, 0.8]])
     passed = np.array([[1, 0, 1], [1, 1, 1], [0, 0, 0], [1, 1, 0]], bool)
-    chosen, ok = selection.choose_rates(val, passed)
+    chosen, ok = check_lib.choose_rates(val, passed)
     np.testing.assert_array_equal(chosen, [0, 2, 1, 1])
     np.testing.assert_array_equal(ok, [True, True, False, True])
 
@@ -140,8 +141,9 @@ def test_each_check_criterion_can_fail_a_pair():
     out = {k: np.array([[v] * (len(bad) + 1)]) for k, v in good.items()}
     for r, (k, v) in enumerate(bad, start=1):
         out[k][0, r] = v
-    passed = selection.passes_check(out, ref, check)
+    passed = check_lib.passes_check(out, ref["contact_fraction"], ref["base_skating_m_s"], ref["speed_m_s"], check)
     np.testing.assert_array_equal(passed[0], [True] + [False] * len(bad))
     # a style that stands still is not held to the distance
     still = dict(ref, speed_m_s=np.array([0.0]))
-    assert selection.passes_check({k: v[:, [0, 5]] for k, v in out.items()}, still, check).all()
+    assert check_lib.passes_check({k: v[:, [0, 5]] for k, v in out.items()}, still["contact_fraction"],
+                                  still["base_skating_m_s"], still["speed_m_s"], check).all()

@@ -14,7 +14,9 @@ The paper chose each new style's dropout rate by eye. jaxstyle chooses it automa
    (:func:`jaxstyle.control.loop.turning_path`, the style's own median speed, ``turn_deg_per_s``)
    for ``seconds``, driven only by its own predictions, i.e. beyond anything in the clip; the
    frozen base without an adapter (the style-agnostic "average motion") walks the same path from
-   the same start. A pair passes when (:class:`RolloutCheck`) every output is finite, bones keep
+   the same start. A pair passes (:func:`jaxstyle.output.check.passes_check`, the measures of
+   :func:`jaxstyle.output.check.rollout_measures`, both shared with the 2022 sweep) when
+   (:class:`RolloutCheck`) every output is finite, bones keep
    their length (mean relative error <= ``max_bone_error``), feet touch the floor (fraction of
    frames with a foot on the floor >= ``min_contact_ratio`` x the real clip's), the adapter does
    not make feet slide (median speed of feet on the floor <= ``max_skating_ratio`` x the base's
@@ -25,8 +27,9 @@ The paper chose each new style's dropout rate by eye. jaxstyle chooses it automa
    0.3-0.5 m/s against 0.1-0.2 m/s; the 2022 paper removes it with foot IK): what the check must
    catch is an adapter that breaks what the base can do. The real clip's figures are reported
    beside it.
-5. **Selection rule** (:func:`choose_rates`): the rate with the lowest validation loss among the
-   rates that pass the check; if none passes, the lowest validation loss, flagged as failing.
+5. **Selection rule** (:func:`jaxstyle.output.check.choose_rates`, shared with the 2022 sweep): the
+   rate with the lowest validation loss among the rates that pass the check; if none passes, the
+   lowest validation loss, flagged as failing.
 
 :func:`fewshot_sweep` runs all of it; :func:`write_report` saves one orbax adapter checkpoint per
 style (with its config), ``results.csv`` (all pairs), ``heatmap.png`` and ``chosen_rates.json``.
@@ -60,6 +63,7 @@ from jaxstyle.mason2018.train import TrainData
 from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
+from jaxstyle.output.check import choose_rates, passes_check, rollout_measures
 from jaxstyle.train import defaults, scan
 from jaxstyle.train.checkpoint import Checkpointer, json_text, read_json
 
@@ -176,62 +180,19 @@ def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normalis
         result = _rollout_rates(model, adapters_R, state, controls)
         base = rollout(model, None, state, controls)
         base_pos, base_origin = np.asarray(base.positions), np.asarray(base.origin)
-        base_measures = _rollout_measures(base_pos, base_origin, bool(np.isfinite(base_pos).all()), skeleton, fps,
-                                          floor, upm, check, speed)
+        base_measures = rollout_measures(base_pos, base_origin, bool(np.isfinite(base_pos).all()), skeleton, fps,
+                                         floor, upm, check, speed)
         ref["base_skating_m_s"][s] = base_measures["skating_m_s"]
         ref["base_bone_error"][s] = base_measures["bone_error"]
         positions, origin, outputs = (np.asarray(v) for v in (result.positions, result.origin, result.outputs))
         for r in range(num_rates):
             finite = bool(np.isfinite(positions[r]).all() and np.isfinite(outputs[r]).all())
-            measures = _rollout_measures(positions[r], origin[r], finite, skeleton, fps, floor, upm, check, speed)
+            measures = rollout_measures(positions[r], origin[r], finite, skeleton, fps, floor, upm, check, speed)
             for k, v in measures.items():
                 out[k][s, r] = v
-    out["passed"] = passes_check(out, ref, check).astype(float)
+    out["passed"] = passes_check(out, ref["contact_fraction"], ref["base_skating_m_s"], ref["speed_m_s"],
+                                 check).astype(float)
     return out, ref
-
-
-def _rollout_measures(positions, origin, finite: bool, skeleton: Motion, fps: float, floor, upm: float,
-                      check: RolloutCheck, speed: float) -> dict[str, float]:
-    """One rollout's measures (the :data:`ROLLOUT_FIELDS` but ``passed``); NaN when not ``finite``.
-    ``speed`` is the requested speed in file units per second."""
-    if not finite:
-        return {"finite": 0.0, "bone_error": np.nan, "contact_fraction": np.nan, "skating_m_s": np.nan,
-                "progress": np.nan}
-    feet = metrics.positions_foot_stats(positions, skeleton, fps, floor, units_per_meter=upm,
-                                        tolerance_m=check.tolerance_m)
-    travelled = float(np.sum(np.linalg.norm(np.diff(origin, axis=0), axis=-1)))
-    return {"finite": 1.0, "bone_error": float(np.mean(metrics.bone_length_errors(positions, skeleton))),
-            "contact_fraction": feet.contact_fraction, "skating_m_s": feet.skating,
-            "progress": travelled / (speed * check.seconds) if speed > 0 else np.nan}
-
-
-def passes_check(out: dict[str, np.ndarray], ref: dict[str, np.ndarray], check: RolloutCheck) -> np.ndarray:
-    """``(S, R)`` whether each pair passes :class:`RolloutCheck`, from the measures ``(S, R)`` and
-    per-style references ``(S,)`` of :func:`check_rollouts`."""
-    base_skating, speed = ref["base_skating_m_s"][:, None], ref["speed_m_s"][:, None]
-    skating, progress = out["skating_m_s"], out["progress"]
-    ok = out["finite"].astype(bool)
-    with np.errstate(invalid="ignore"):
-        ok &= out["bone_error"] <= check.max_bone_error
-        ok &= out["contact_fraction"] >= check.min_contact_ratio * ref["contact_fraction"][:, None]
-        # judged against the base only where the base's own rollout was finite
-        ok &= ~np.isfinite(base_skating) | np.isnan(skating) | (
-            skating <= check.max_skating_ratio * base_skating + check.skating_slack_m_s)
-        # the distance only for styles that move
-        ok &= (speed < 0.1) | ((progress >= check.min_progress) & (progress <= 1.0 / check.min_progress))
-    return ok
-
-
-# --- 5. selection ------------------------------------------------------------------------------------
-
-def choose_rates(val_SxR: np.ndarray, passed_SxR: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per style the index of the chosen rate and whether it passed the closed-loop check: the
-    lowest validation loss among passing rates, else the lowest validation loss overall."""
-    val = np.where(np.isfinite(val_SxR), val_SxR, np.inf)
-    masked = np.where(passed_SxR.astype(bool), val, np.inf)
-    any_pass = np.isfinite(masked).any(axis=1)
-    chosen = np.where(any_pass, np.argmin(masked, axis=1), np.argmin(val, axis=1))
-    return chosen, any_pass
 
 
 # --- the whole pipeline and its report ------------------------------------------------------------

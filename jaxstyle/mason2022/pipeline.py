@@ -15,9 +15,9 @@ folder in the 100STYLE layout (:mod:`jaxstyle.data.folders`):
    rate) pair in one compiled program, then tests every pair and the model before fine-tuning;
    :func:`finetune_clips` adds a closed-loop check of every pair with the 2022 controller
    (:func:`closed_loop_check`) and writes the chosen generators;
-4. select: :func:`choose_rates` keeps per new style the rate of the lowest validation MSE + bone-length
-   loss (a style without validation rows keeps the first rate); :func:`choose_checked` the same
-   among the rates that passed the check;
+4. select: :func:`jaxstyle.output.check.choose_rates` (the 2018 sweep's rule) keeps per new style
+   the rate of the lowest validation MSE + bone-length loss (a style without validation rows keeps
+   the first rate), among the rates that passed the check when there is one;
 5. report: Markdown lines (:func:`losses_table`, :func:`models_table`, :func:`budget_table`,
    :func:`ordering_lines`, :func:`finetune_summary`, :func:`finetune_table`, :func:`check_table`)
    and files (:func:`write_finetune`: the generators and chosen rates; :func:`curves_figure`:
@@ -46,6 +46,7 @@ from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import viz
+from jaxstyle.output.check import choose_rates
 from jaxstyle.train import defaults
 from jaxstyle.train.checkpoint import json_text
 from jaxstyle.train.defaults import FILM_DEFAULT_RATES
@@ -344,12 +345,6 @@ class FinetuneResult:
                                         int(self.chosen[s]) if rate_index is None else rate_index)
 
 
-def choose_rates(validation_loss_SxR: np.ndarray) -> np.ndarray:
-    """Per style the index of the rate with the lowest finite validation loss (0 when none is finite)."""
-    loss = np.where(np.isfinite(validation_loss_SxR), validation_loss_SxR, np.inf)
-    return np.argmin(loss, axis=1).astype(np.int32)
-
-
 SPLITS = ("validation", "test")
 
 
@@ -358,7 +353,8 @@ def finetune_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FINE
     """Fine-tune ``model``'s FiLM generator on every new style of ``data`` at every dropout rate,
     at most ``steps`` steps each (over at most ``epochs`` epochs), in one compiled sweep
     (:func:`jaxstyle.mason2022.train.finetune_film_sweep`); test every pair and the model as it was on
-    the new styles' validation and test rows, and choose a rate per style (:func:`choose_rates`)."""
+    the new styles' validation and test rows, and choose a rate per style
+    (:func:`jaxstyle.output.check.choose_rates` on validation alone)."""
     if model.config.modulation != "film":
         raise PipelineError(f"{model.name}: only a FiLM model's generator can be fine-tuned on new styles")
     if data.new is None:
@@ -381,7 +377,7 @@ def finetune_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FINE
                 losses = train_lpn.evaluate(tuned, model.config, new, split, styles=[s])
                 for k in ("mse", "bll"):
                     after[split][k][s, r] = losses[k][0]
-    chosen = choose_rates(after["validation"]["mse"] + after["validation"]["bll"])
+    chosen, _ = choose_rates(after["validation"]["mse"] + after["validation"]["bll"])
     return FinetuneResult(tuple(new.styles), config.rates, gens, int(per_step.shape[2]), seconds, before, after,
                           chosen, new)
 
@@ -441,7 +437,8 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     """Drive every (new style, rate) of a fine-tuning sweep and, per new style, the model before
     fine-tuning, in ONE batched rollout; returns ``(S, R)`` arrays named by :data:`CHECK_FIELDS`
     and per style ``(S,)`` references ``real_contact_fraction``, ``speed_m_s``,
-    ``base_skating_m_s``, ``base_bone_error`` (see :class:`ClosedLoopCheck`)."""
+    ``base_skating_m_s``, ``base_bone_error`` (see :class:`ClosedLoopCheck`; the measures and the
+    pass rule are the 2018 sweep's, :mod:`jaxstyle.output.check`)."""
     from jaxstyle.control import loop, lpn_controller
     from jaxstyle.control.model import rollout_batch
     from jaxstyle.data.lpn_features import bone_points
@@ -449,6 +446,7 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
     from jaxstyle.motion.kinematics import UP_AXIS, global_positions
     from jaxstyle.output import metrics
+    from jaxstyle.output.check import passes_check, rollout_measures
 
     new, skeleton, raw = result.data, data.skeleton, data.new
     upm, num_joints = estimate_units_per_meter(skeleton), skeleton.num_joints
@@ -496,40 +494,16 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     measures = {k: np.full((num_styles, num_rates + 1), np.nan) for k in CHECK_FIELDS[:-1]}
     for c in range(len(styles)):
         s, r = divmod(c, num_rates + 1)
-        measures["finite"][s, r] = float(finite_c[c])
-        if not finite_c[c]:
-            continue
-        stats = metrics.positions_foot_stats(positions[c], skeleton, fps, floors[s], units_per_meter=upm,
-                                             tolerance_m=check.tolerance_m)
-        travelled = float(np.sum(np.linalg.norm(np.diff(origin[c], axis=0), axis=-1)))
-        speed = ref["speed_m_s"][s] * upm
-        measures["bone_error"][s, r] = float(np.mean(metrics.bone_length_errors(positions[c], skeleton)))
-        measures["contact_fraction"][s, r] = stats.contact_fraction
-        measures["skating_m_s"][s, r] = stats.skating
-        measures["progress"][s, r] = travelled / (speed * check.seconds) if speed > 0 else np.nan
+        row = rollout_measures(positions[c], origin[c], bool(finite_c[c]), skeleton, fps, floors[s], upm, check,
+                               ref["speed_m_s"][s] * upm)
+        for k, v in row.items():
+            measures[k][s, r] = v
     ref["base_skating_m_s"] = measures["skating_m_s"][:, -1]
     ref["base_bone_error"] = measures["bone_error"][:, -1]
     out_sr = {k: v[:, :-1] for k, v in measures.items()}
-    ok = out_sr["finite"].astype(bool)
-    base_skating, speed_m_s = ref["base_skating_m_s"][:, None], ref["speed_m_s"][:, None]
-    with np.errstate(invalid="ignore"):
-        ok &= out_sr["bone_error"] <= check.max_bone_error
-        ok &= out_sr["contact_fraction"] >= check.min_contact_ratio * ref["real_contact_fraction"][:, None]
-        ok &= ~np.isfinite(base_skating) | np.isnan(out_sr["skating_m_s"]) | (
-            out_sr["skating_m_s"] <= check.max_skating_ratio * base_skating + check.skating_slack_m_s)
-        progress = out_sr["progress"]
-        ok &= (speed_m_s < 0.1) | ((progress >= check.min_progress) & (progress <= 1.0 / check.min_progress))
-    out_sr["passed"] = ok.astype(float)
+    out_sr["passed"] = passes_check(out_sr, ref["real_contact_fraction"], ref["base_skating_m_s"], ref["speed_m_s"],
+                                    check).astype(float)
     return {**out_sr, **ref}
-
-
-def choose_checked(validation_loss_SxR: np.ndarray, passed_SxR: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per style the rate index of the lowest finite validation loss among the rates that passed
-    the closed-loop check, else among all (as the 2018 sweep chooses); and whether it passed."""
-    val = np.where(np.isfinite(validation_loss_SxR), validation_loss_SxR, np.inf)
-    masked = np.where(np.asarray(passed_SxR, bool), val, np.inf)
-    any_pass = np.isfinite(masked).any(axis=1)
-    return np.where(any_pass, np.argmin(masked, axis=1), np.argmin(val, axis=1)).astype(np.int32), any_pass
 
 
 def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
@@ -539,14 +513,14 @@ def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
     """New styles from the user's clips (``data.new``, :func:`user_clip_data`) the 2022 way: the
     FiLM generator alone fine-tuned for every (clip style, rate) in one compiled sweep
     (:func:`finetune_sweep`), every pair validated and driven closed-loop
-    (:func:`closed_loop_check`), a rate chosen per style (:func:`choose_checked`), and written to
+    (:func:`closed_loop_check`), a rate chosen per style (:func:`jaxstyle.output.check.choose_rates`), and written to
     ``directory``: :func:`write_finetune`'s files (every generator, ``chosen_rates.json`` with the
     check), ``generators/<style>.npz`` (the chosen generator alone, :func:`load_generator` reads it)
     and ``clips.json`` (the clips, the rates, the base clips: enough to rebuild the new styles' rows)."""
     result = finetune_sweep(model, data, rates=rates, steps=steps, epochs=epochs, progress=progress)
     checked = closed_loop_check(model, result, data, check)
     val = result.after["validation"]["mse"] + result.after["validation"]["bll"]
-    chosen, passed = choose_checked(val, checked["passed"])
+    chosen, passed = choose_rates(val, checked["passed"])
     result = dataclasses.replace(result, chosen=chosen)
     directory = Path(directory)
     paths = write_finetune(result, directory)

@@ -1,0 +1,72 @@
+"""The closed-loop check of fine-tuned new styles and the rate choice, both papers' (the 2018
+adapters' few-shot sweep, :mod:`jaxstyle.mason2018.selection`; the 2022 FiLM generators' sweep,
+:func:`jaxstyle.mason2022.pipeline.closed_loop_check`).
+
+Each paper drives its fine-tuned pairs (style x dropout rate) and the model before fine-tuning
+along the check's path (:class:`jaxstyle.train.defaults.RolloutCheck`); what is measured of a
+rollout (:func:`rollout_measures`), when a pair passes (:func:`passes_check`) and which rate is
+chosen (:func:`choose_rates`) are written once here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jaxstyle.motion import Motion
+from jaxstyle.output import metrics
+from jaxstyle.train.defaults import RolloutCheck
+
+NAN_MEASURES = {"finite": 0.0, "bone_error": np.nan, "contact_fraction": np.nan, "skating_m_s": np.nan,
+                "progress": np.nan}
+
+
+def rollout_measures(positions_TxJx3, origin_Tx2, finite: bool, skeleton: Motion, fps: float, floor,
+                     units_per_meter: float, check: RolloutCheck, speed: float) -> dict[str, float]:
+    """One rollout's measures (:data:`jaxstyle.train.defaults.ROLLOUT_FIELDS` but ``passed``), NaN
+    when not ``finite``: mean bone-length error, the share of frames with a foot on the floor and
+    the foot skating (:func:`jaxstyle.output.metrics.positions_foot_stats`, over the style's
+    ``floor`` heights), and the distance travelled over the path's length (``speed`` in file units
+    per second times :attr:`RolloutCheck.seconds`)."""
+    if not finite:
+        return dict(NAN_MEASURES)
+    feet = metrics.positions_foot_stats(positions_TxJx3, skeleton, fps, floor, units_per_meter=units_per_meter,
+                                        tolerance_m=check.tolerance_m)
+    travelled = float(np.sum(np.linalg.norm(np.diff(origin_Tx2, axis=0), axis=-1)))
+    return {"finite": 1.0, "bone_error": float(np.mean(metrics.bone_length_errors(positions_TxJx3, skeleton))),
+            "contact_fraction": feet.contact_fraction, "skating_m_s": feet.skating,
+            "progress": travelled / (speed * check.seconds) if speed > 0 else np.nan}
+
+
+def passes_check(out: dict[str, np.ndarray], real_contact_fraction_S, base_skating_m_s_S, speed_m_s_S,
+                 check: RolloutCheck) -> np.ndarray:
+    """``(S, R)`` whether each pair passes the :class:`RolloutCheck`, from the pairs' measures
+    ``out`` (``(S, R)`` arrays of :func:`rollout_measures`) and per style ``(S,)``: the capture's
+    share of frames with a foot on the floor, the skating of the model before fine-tuning on the
+    same path (NaN where its rollout diverged: not judged against it) and the style's speed (m/s;
+    a style that stands still is not held to the distance)."""
+    base_skating = np.asarray(base_skating_m_s_S, np.float64)[:, None]
+    speed = np.asarray(speed_m_s_S, np.float64)[:, None]
+    contact = np.asarray(real_contact_fraction_S, np.float64)[:, None]
+    skating, progress = out["skating_m_s"], out["progress"]
+    ok = np.asarray(out["finite"]).astype(bool)
+    with np.errstate(invalid="ignore"):
+        ok &= out["bone_error"] <= check.max_bone_error
+        ok &= out["contact_fraction"] >= check.min_contact_ratio * contact
+        ok &= ~np.isfinite(base_skating) | np.isnan(skating) | (
+            skating <= check.max_skating_ratio * base_skating + check.skating_slack_m_s)
+        ok &= (speed < 0.1) | ((progress >= check.min_progress) & (progress <= 1.0 / check.min_progress))
+    return ok
+
+
+def choose_rates(validation_loss_SxR: np.ndarray, passed_SxR: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Per style the index of the chosen rate and whether it passed the closed-loop check: the
+    lowest finite validation loss among the rates that passed, else among all rates (flagged as
+    not passed; the first rate when no loss is finite). ``passed_SxR=None``: validation alone (every
+    rate counts as passed; the flag then says whether the style has a finite loss)."""
+    val = np.where(np.isfinite(validation_loss_SxR), validation_loss_SxR, np.inf)
+    passed = np.ones(val.shape, bool) if passed_SxR is None else np.asarray(passed_SxR).astype(bool)
+    masked = np.where(passed, val, np.inf)
+    any_pass = np.isfinite(masked).any(axis=1)
+    chosen = np.where(any_pass, np.argmin(masked, axis=1), np.argmin(val, axis=1)).astype(np.int32)
+    return chosen, any_pass
