@@ -27,7 +27,7 @@ Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output)
    the lock moved a foot, how deep a foot goes below the floor; feet on floor; bone error (network, BVH); the largest
    network-to-BVH joint distance; path error mean / final / final %; heading error; time to
    stop; jitter; ankle jerk; each beside the style's capture; the targets checked (jaxstyle.output.quality.targets).
-6. Diagnosis (:func:`jaxstyle.output.quality.diagnose`) of the first base style and the first
+6. Diagnosis (:func:`jaxstyle.output.diagnose.diagnose`) of the first base style and the first
    few-shot set.
 7. The 2022 models: every model trained into ``--lpn`` (a model's folder, or a
    run folder of them such as ``runs/mason2022`` of ``experiments/mason2022_table2.py``; default
@@ -58,7 +58,7 @@ import jaxstyle as js
 from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, PipelineError, available_styles
 from jaxstyle.mason2018 import pipeline, selection
 from jaxstyle.mason2022 import synthesis as synthesis2022
-from jaxstyle.output import preview, quality
+from jaxstyle.output import diagnose, preview, quality
 
 
 def model_dirs(folder: Path) -> list[Path]:
@@ -146,7 +146,7 @@ def main() -> None:
     rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds)
     t_lpn = time.perf_counter() - t1
     checks = quality.targets(rows)
-    diag = [quality.diagnose(base.params, base.normalisers, s, base.skeleton)
+    diag = [diagnose.diagnose(base.params, base.normalisers, s, base.skeleton)
             for s in (subjects[0], *(s for s in subjects if s.kind == "few-shot"))][:2]
     upm = js.estimate_units_per_meter(base.skeleton)
     sheet = preview.contact_sheet(run / "contact_sheet.png", [drawn[(s.title, "circle")][0] for s in subjects[:4]],
@@ -161,7 +161,7 @@ def main() -> None:
              *quality.target_summary(checks), "", "## Foot locking against the plain contact IK (same rollouts)", "",
              *quality.lock_comparison(rows), "", "## Diagnosis", ""]
     for d in diag:
-        lines += [*quality.diagnosis_lines(d), ""]
+        lines += [*diagnose.diagnosis_lines(d), ""]
     (run / "quality.md").write_text("\n".join(lines) + "\n")
     files = [quality.write_csv(rows, run / "quality.csv"), run / "quality.md", quality.plot(rows, run / "quality.png"),
              sheet]

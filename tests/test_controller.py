@@ -194,10 +194,10 @@ def test_stop_and_go_stops_and_starts_again(tiny_walker):
     # the benchmark's measures of the same rollout: the exported skeleton follows the same root path
     # (the applied root motion is what the outputs record) with exact bones, and the IK uses the
     # network's own heel and toe contacts
-    from jaxstyle.output import quality
+    from jaxstyle.output import measure
 
     assert js.data.pfnn_features.output_contacts(np.asarray(out.outputs), skeleton.num_joints).shape == (360, 4)
-    row = quality.measure(jax.tree.map(np.asarray, out), skeleton, sig, units_per_meter=upm)
+    row = measure.measure(jax.tree.map(np.asarray, out), skeleton, sig, units_per_meter=upm)
     assert row["bone_error_bvh_max"] < 1e-9 and row["stop_time_s"] <= 0.5
     decoded_root = js.global_positions(js.decode_pfnn(np.asarray(out.outputs), skeleton)[0])[:, 0, [0, 2]]
     np.testing.assert_allclose(decoded_root, np.asarray(out.positions)[:, 0, [0, 2]], atol=0.05 * upm)

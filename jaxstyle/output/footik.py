@@ -5,7 +5,7 @@ animation with foot contact inverse kinematics." The paper gives no further deta
 the plain reading: pin while the label says contact. What jaxstyle applies by default is
 :mod:`jaxstyle.output.footlock` (contacts from the motion, bounded locks, smooth releases, live);
 :func:`fix_foot_sliding` stays as the baseline it is measured against
-(:func:`jaxstyle.output.quality.pinned_feet`) and :func:`two_bone_ik` is shared. Here:
+(:func:`jaxstyle.output.measure.pinned_feet`) and :func:`two_bone_ik` is shared. Here:
 
 * **Targets.** While a foot is in contact (its label >= 0.5), its ankle is held where it was at the
   first frame of the contact (all three coordinates). After the contact the offset between the held

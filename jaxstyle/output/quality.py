@@ -4,7 +4,7 @@ six protocol paths, measured as the user sees it, beside the same figures of its
 Per (character, path), from ONE batched closed-loop rollout with the path-following law of
 :mod:`jaxstyle.control.loop` (:func:`run`, for any :class:`jaxstyle.control.model.CharacterModel`:
 the 2018 PFNN with style adapters, the 2022 style models; measured by the one function
-:func:`measure`):
+:func:`jaxstyle.output.measure.measure`):
 
 * foot skating (:func:`jaxstyle.output.metrics.foot_skating`) of the network's own joints, of the
   exported skeleton (the BVH's forward kinematics: bone lengths exact, :mod:`jaxstyle.output.export`)
@@ -12,7 +12,7 @@ the 2018 PFNN with style adapters, the 2022 style models; measured by the one fu
   the BVH holds: contacts from the motion, started also by the network's predicted labels);
 * stepping after locking (steps per second, stance fraction, slide per contact:
   :func:`jaxstyle.output.metrics.step_figures`), the largest distance the lock moved a foot and
-  how deep a foot goes below the floor (:data:`LOCK_FIGURES`);
+  how deep a foot goes below the floor (:data:`jaxstyle.output.measure.LOCK_FIGURES`);
 * feet on the floor, bone error of the network's joints and of the BVH (0 by construction), and
   the largest distance between the network's joints and the BVH's;
 * path error (mean, final, final as % of the path's length), heading error, the time to stop
@@ -23,9 +23,9 @@ the 2018 PFNN with style adapters, the 2022 style models; measured by the one fu
 (:data:`MODEL_2018` or the 2022 model's Table 2 name).
 :func:`targets` checks the targets, :func:`table` and :func:`write_csv` report,
 :func:`target_marks` lists chosen targets with pass/fail marks (``jaxstyle demo``), :func:`plot`
-draws the bars (generated vs capture). :func:`diagnose` measures where sliding and
-drift come from (teacher-forced vs closed loop, root vs planted-foot velocity, phase advance vs
-cadence, trajectory blending, normalisation) for ``docs/quality.md``.
+draws the bars (generated vs capture). :func:`jaxstyle.output.diagnose.diagnose` measures where
+sliding and drift come from (teacher-forced vs closed loop, root vs planted-foot velocity, phase
+advance vs cadence, trajectory blending, normalisation) for ``docs/quality.md``.
 """
 
 from __future__ import annotations
@@ -35,25 +35,20 @@ import dataclasses
 import math
 import os
 from pathlib import Path
-from typing import Any, NamedTuple, Sequence
+from typing import Any, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from jaxstyle.control import loop, paths
-from jaxstyle.control.controller import PFNNModel
-from jaxstyle.control.model import CharacterModel, Frames, rollout
+from jaxstyle.control.model import CharacterModel
 from jaxstyle.data import datasets
 from jaxstyle.data.datasets import style_rows
-from jaxstyle.data.normalise import Normaliser
-from jaxstyle.data.pfnn_features import PFNNLayout
-from jaxstyle.labels.contacts import FootJoints, body_units_per_meter, estimate_units_per_meter
+from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
-from jaxstyle.motion.kinematics import global_positions
-from jaxstyle.nn import pfnn
-from jaxstyle.output import drive, export, footlock, metrics
+from jaxstyle.output import drive, footlock
 from jaxstyle.output.drive import Character
+from jaxstyle.output.measure import SLIDING_SOURCES, capture_figures, exported, measure
 
 PROTOCOL_PATHS = ("straight", "circle", "zigzag", "stop_and_go", "speed_ramp", "waypoints")
 FOLLOW_PATHS = ("straight", "circle", "zigzag")  # the paths of the 0.3 m final-error target
@@ -126,131 +121,6 @@ def run(model: CharacterModel, subjects: Sequence[Subject], skeleton: Motion, *,
     return measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton, driven.speeds)
 
 
-class Exported(NamedTuple):
-    """A rollout as the user gets it: the network's joints ``net``, the exported skeleton's joints
-    before (``bvh``) and after foot locking (``locked``, what the BVH file holds), the lock's
-    :class:`jaxstyle.output.footlock.LockedMotion` (``None`` when the outputs are not finite), and
-    for comparison ``pinned``: the skeleton after the plain contact IK of the 2022 paper's section
-    4.4 (:func:`pinned_feet`); ``floor_2x2``, the training skeleton's planted heights the lock and
-    the floor figures use."""
-
-    net: np.ndarray
-    bvh: np.ndarray | None
-    locked: np.ndarray | None
-    lock: Any
-    pinned: np.ndarray | None
-    floor_2x2: np.ndarray
-
-
-def raised_to_floor(positions_TxJx3: np.ndarray, skeleton: Motion, floor_2x2: np.ndarray) -> np.ndarray:
-    """The positions with every heel and toe below its planted height ``floor_2x2`` (``[side,
-    heel/toe]``, e.g. :func:`jaxstyle.output.footlock.skeleton_floor` of the training skeleton)
-    raised onto it, nothing else changed: what the floor alone does to the skating figure (feet
-    that glide through the floor glide on it)."""
-    out = np.array(positions_TxJx3, dtype=np.float64, copy=True)
-    feet, floor = FootJoints.find(skeleton), np.asarray(floor_2x2, dtype=np.float64)
-    for side in range(2):
-        for k, j in enumerate((feet.ankles[side], feet.toes[side])):
-            out[:, j, 1] = np.maximum(out[:, j, 1], floor[side, k])
-    return out
-
-
-def pinned_feet(motion: Motion, rollout) -> Motion:
-    """The baseline post-process: heels and toes pinned while the network's predicted contact
-    labels are on (:func:`jaxstyle.output.footik.fix_foot_sliding`, 5 blend frames), or, for a model
-    without contact outputs, while within 1 cm of the floor for at least 0.1 s; no speed test,
-    no reach limit."""
-    from jaxstyle.labels.contacts import foot_contacts
-    from jaxstyle.output import footik
-
-    contacts = export.network_contacts(rollout, motion.num_joints)
-    if contacts is None:
-        c = foot_contacts(motion, speed_threshold=None, min_duration=0.1)
-        contacts = np.concatenate([c.heel, c.toe], axis=1)
-    return footik.fix_foot_sliding(motion, contacts, blend_frames=5, pin_toes=True)
-
-
-def exported(rollout: Frames, skeleton: Motion,
-             floor_2x2: np.ndarray | None = None) -> Exported:
-    """:class:`Exported` of one character's rollout of any model (the network's joints are the
-    skeleton's: an LPN rollout's extra hand points are left out). ``floor_2x2``: the skeleton's
-    planted heights (:func:`jaxstyle.output.footlock.skeleton_floor`, computed when omitted; pass
-    it to measure many rollouts on one skeleton)."""
-    floor = footlock.skeleton_floor(skeleton) if floor_2x2 is None else np.asarray(floor_2x2)
-    net = np.asarray(rollout.positions, dtype=np.float64)[:, :skeleton.num_joints]
-    if not np.isfinite(np.asarray(rollout.outputs)).all():
-        return Exported(net, None, None, None, None, floor)
-    motion = export.rollout_motion(rollout, skeleton)
-    lock = export.lock_feet(motion, rollout, floor_2x2=floor)
-    return Exported(net, global_positions(motion), global_positions(lock.motion), lock,
-                    global_positions(pinned_feet(motion, rollout)), floor)
-
-
-LOCK_FIGURES = ("steps_per_s", "stance_fraction", "slide_per_contact_m", "steps_per_s_bvh", "ik_foot_offset_max_m",
-                "foot_below_floor_m")
-"""The stepping and foot-lock columns of :func:`measure` (``steps_per_s``, ``stance_fraction`` and
-``slide_per_contact_m`` of the locked skeleton, :func:`jaxstyle.output.metrics.step_figures`;
-``steps_per_s_bvh`` before locking)."""
-
-
-def measure(rollout: Frames, skeleton: Motion, signal: paths.PathSignal, *,
-            units_per_meter: float, out: Exported | None = None) -> dict:
-    """The figures of one character's rollout along ``signal`` (see the module docstring), of any
-    model: the network's joints, the exported skeleton (the BVH's,
-    :func:`jaxstyle.output.export.rollout_motion` decodes both models' outputs) and the same after
-    foot locking (:func:`jaxstyle.output.export.lock_feet`, the network's own contacts starting
-    locks when it predicts them): skating of all three, stepping of the locked skeleton
-    (:data:`LOCK_FIGURES`), how far the lock moved a foot and how deep a foot goes below the
-    training skeleton's floor; and for comparison the same of the plain contact IK
-    (:func:`pinned_feet`, ``*_pinned`` columns). ``out``: :func:`exported` of the rollout, if already
-    computed."""
-    upm, fps = float(units_per_meter), float(signal.fps)
-    e = exported(rollout, skeleton) if out is None else out
-    net = e.net
-    nan = float("nan")
-    row = {"foot_skating_m_s": nan, "foot_skating_bvh_m_s": nan, "foot_skating_locked_m_s": nan}
-    if e.bvh is None:
-        return {**row, "finite": False}
-    bvh, after = e.bvh, e.locked
-    bones = metrics.bone_length_errors(net, skeleton)
-    err = np.linalg.norm(np.asarray(rollout.origin) - signal.positions, axis=-1) / upm
-    length = float(np.sum(np.linalg.norm(signal.velocity, axis=1)) / fps / upm)
-    stops = metrics.stop_times(rollout.origin, signal.velocity, fps, units_per_meter=upm)
-    q = metrics.motion_quality(net, skeleton, fps, units_per_meter=upm)
-    steps = metrics.step_figures(after, skeleton, fps)
-    return {
-        "finite": True,
-        "foot_skating_m_s": metrics.foot_skating(net, skeleton, fps, units_per_meter=upm),
-        "foot_skating_bvh_m_s": metrics.foot_skating(bvh, skeleton, fps, units_per_meter=upm),
-        "foot_skating_locked_m_s": metrics.foot_skating(after, skeleton, fps, units_per_meter=upm),
-        "contact_fraction": q.contact_fraction,
-        **dataclasses.asdict(steps),
-        "steps_per_s_bvh": metrics.step_figures(bvh, skeleton, fps).steps_per_s,
-        "ik_foot_offset_max_m": metrics.foot_offset_max_m(bvh, after, skeleton, units_per_meter=upm),
-        "foot_below_floor_m": metrics.foot_below_floor_m(after, skeleton, e.floor_2x2,
-                                                         units_per_meter=upm),
-        "bone_error_mean": float(np.mean(bones)), "bone_error_max": float(np.max(bones)),
-        "bone_error_bvh_max": float(np.max(metrics.bone_length_errors(bvh, skeleton))),
-        "joint_difference_max_m": metrics.max_joint_difference_m(net, bvh, units_per_meter=upm),
-        "path_error_mean_m": float(np.mean(err)), "path_error_final_m": float(err[-1]),
-        "path_error_final_pct": 100.0 * float(err[-1]) / length if length > 0 else nan,
-        "heading_error_deg": metrics.heading_error_deg(rollout.yaw, signal.yaw),
-        "stop_time_s": float(np.max(stops)) if len(stops) else nan, "stop_commands": int(len(stops)),
-        "jitter_m_s3": q.jitter_m_s3,
-        "ankle_jerk_m_s3": metrics.foot_jerk(net, skeleton, fps, units_per_meter=upm),
-        "foot_skating_floor_m_s": metrics.foot_skating(raised_to_floor(bvh, skeleton, e.floor_2x2), skeleton, fps,
-                                                       units_per_meter=upm),
-        "ankle_jerk_bvh_m_s3": metrics.foot_jerk(bvh, skeleton, fps, units_per_meter=upm),
-        "ankle_jerk_locked_m_s3": metrics.foot_jerk(after, skeleton, fps, units_per_meter=upm),
-        **({} if e.pinned is None else {
-            "foot_skating_pinned_m_s": metrics.foot_skating(e.pinned, skeleton, fps, units_per_meter=upm),
-            "steps_per_s_pinned": metrics.step_figures(e.pinned, skeleton, fps).steps_per_s,
-            "ik_foot_offset_max_pinned_m": metrics.foot_offset_max_m(bvh, e.pinned, skeleton, units_per_meter=upm),
-            "ankle_jerk_pinned_m_s3": metrics.foot_jerk(e.pinned, skeleton, fps, units_per_meter=upm)}),
-        **{f"sliding_{k.replace(', ', '_')}": v for k, v in sliding_sources(e, skeleton, fps).items()},
-    }
-
-
 def capture_clip(subject: Subject, fps: float = 60.0) -> Motion:
     """The style's capture: the first clip of its start rows
     (:func:`jaxstyle.data.datasets.style_rows`: a forward walk, else a forward run, of the style;
@@ -269,30 +139,6 @@ def capture_row(subject: Subject) -> dict:
     spec = capture_spec(subject.dataset, subject.style)
     return {"model": subject.model, "style": subject.title, "kind": subject.kind, "path": "capture",
             "capture_file": Path(spec.path).name, **capture_figures(datasets.load_clip(spec, fps=60.0))}
-
-
-def capture_figures(clip: Motion) -> dict:
-    """:func:`measure`'s figures of real motion (its skeleton is its BVH: the network, BVH and
-    locked columns are the same, the lock moved nothing; the floor is its own; no path, so the
-    path figures are NaN)."""
-    upm, fps = estimate_units_per_meter(clip), clip.fps
-    pos = global_positions(clip)
-    q = metrics.motion_quality(pos, clip, fps, units_per_meter=upm)
-    skate = q.foot_skating_m_s
-    jerk = metrics.foot_jerk(pos, clip, fps, units_per_meter=upm)
-    steps = metrics.step_figures(pos, clip, fps)
-    nan = float("nan")
-    return {"speed_m_s": nan, "finite": True,
-            "foot_skating_m_s": skate, "foot_skating_bvh_m_s": skate, "foot_skating_locked_m_s": skate,
-            "contact_fraction": q.contact_fraction, **dataclasses.asdict(steps), "steps_per_s_bvh": steps.steps_per_s,
-            "ik_foot_offset_max_m": 0.0,
-            "foot_below_floor_m": metrics.foot_below_floor_m(pos, clip, footlock.skeleton_floor(clip),
-                                                             units_per_meter=upm),
-            "bone_error_mean": q.bone_error_mean,
-            "bone_error_max": q.bone_error_max, "bone_error_bvh_max": q.bone_error_max, "joint_difference_max_m": 0.0,
-            "path_error_mean_m": nan, "path_error_final_m": nan, "path_error_final_pct": nan,
-            "heading_error_deg": nan, "stop_time_s": nan, "jitter_m_s3": q.jitter_m_s3, "ankle_jerk_m_s3": jerk,
-            "ankle_jerk_bvh_m_s3": jerk, "ankle_jerk_locked_m_s3": jerk}
 
 
 def _model(r: dict) -> str:
@@ -459,179 +305,6 @@ def plot(rows: list[dict], path: str | os.PathLike) -> Path:
 
 # --- diagnosis -----------------------------------------------------------------------------------------------------
 
-def _one_clip_rows(dataset: datasets.Dataset, style: str) -> np.ndarray:
-    rows = style_rows(dataset, style)
-    clip = dataset.clip[rows[0]]
-    rows = rows[dataset.clip[rows] == clip]
-    return rows[np.argsort(dataset.frame[rows])]
-
-
-def outputs_positions(outputs_NxO: np.ndarray, num_joints: int) -> np.ndarray:
-    """``(N, J, 3)`` global joint positions of a sequence of de-normalised PFNN outputs: the root
-    motion integrated from the origin facing +Z, each frame's local joint positions placed there
-    (what the closed loop does, without feeding anything back)."""
-    y = np.asarray(outputs_NxO, dtype=np.float64)
-    g = PFNNLayout(num_joints).output_groups
-    n = len(y)
-    yaw = np.cumsum(y[:, 2])
-    prev = np.concatenate([[0.0], yaw[:-1]])
-    gx, gz = y[:, 0] * np.cos(prev) + y[:, 1] * np.sin(prev), -y[:, 0] * np.sin(prev) + y[:, 1] * np.cos(prev)
-    origin = np.cumsum(np.stack([gx, gz], axis=1), axis=0)
-    local = y[:, g["joint_position"]].reshape(n, num_joints, 3)
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    wx, wz = local[..., 0] * c + local[..., 2] * s, -local[..., 0] * s + local[..., 2] * c
-    return np.stack([wx + origin[:, :1], local[..., 1], wz + origin[:, 1:]], axis=-1)
-
-
-def _root_vs_foot(outputs_NxO, positions_NxJx3, skeleton: Motion, fps: float, upm: float) -> dict:
-    """On frames where a foot joint stays within 1 cm of its floor: the root's speed, the speed of
-    that foot in the character frame (it should move backwards as fast as the root moves forward)
-    and the foot's world speed (the skating)."""
-    y = np.asarray(outputs_NxO, dtype=np.float64)
-    g = PFNNLayout(skeleton.num_joints).output_groups
-    feet = FootJoints.find(skeleton)
-    joints = list(feet.ankles) + list(feet.toes)
-    local = y[:, g["joint_position"]].reshape(len(y), -1, 3)[:, joints]
-    h = local[..., 1]
-    on = h <= np.percentile(h, 5, axis=0) + metrics.TOLERANCE_M * upm
-    both = on[1:] & on[:-1]
-    root = np.repeat(np.linalg.norm(y[1:, :2], axis=-1)[:, None], len(joints), axis=1) * fps / upm
-    foot_local = np.linalg.norm(np.diff(local[..., [0, 2]], axis=0), axis=-1) * fps / upm
-    world = np.linalg.norm(np.diff(np.asarray(positions_NxJx3)[:, joints][..., [0, 2]], axis=0), axis=-1) * fps / upm
-    return {"root_m_s": float(root[both].mean()), "planted_foot_local_m_s": float(foot_local[both].mean()),
-            "planted_foot_world_m_s": float(world[both].mean())}
-
-
-def diagnose(params: dict, normalisers: tuple[Normaliser, Normaliser], subject: Subject, skeleton: Motion) -> dict:
-    """Where sliding and drift come from, for one subject (``docs/quality.md``):
-
-    * ``teacher_forced``: skating, bone error and jitter of the network's one-step predictions from
-      real inputs along one capture clip (the real root motion, the predicted pose), against the
-      capture's own rows and the closed loop (``closed_loop``: straight path, own speed, with the
-      path-following law);
-    * ``root_vs_foot``: on planted frames, the root's speed vs the planted foot's backward speed in
-      the character frame (equal when a foot does not slide) and its world speed, for the capture
-      rows and the closed loop;
-    * ``phase``: phase advance (cycles/s) of the capture, of the teacher-forced prediction and of the
-      closed loop;
-    * ``blending``: final path error and skating on straight and zigzag for trajectory blend biases
-      0.5 / 1.5 / 3.0, with and without the path-following law;
-    * ``normalisation``: the output standard deviations of root velocity, turn, phase change and
-      joint positions (m or rad per frame) and the teacher-forced RMSE of each in units of them.
-    """
-    ds = subject.dataset
-    x_norm, y_norm = normalisers
-    upm, fps, J = estimate_units_per_meter(skeleton), skeleton.fps, skeleton.num_joints
-    g = PFNNLayout(J).output_groups
-    rows = _one_clip_rows(ds, subject.style)
-    x = jnp.asarray(x_norm.apply(ds.inputs[rows]), jnp.float32)
-    y_pred = y_norm.invert(np.asarray(pfnn.pfnn_apply(params, x, jnp.asarray(ds.phases[rows, 0]),
-                                                      adapter=subject.conditioning), dtype=np.float64))
-    y_real = np.asarray(ds.outputs[rows], dtype=np.float64)
-    hybrid = y_real.copy()
-    hybrid[:, g["joint_position"]] = y_pred[:, g["joint_position"]]
-    out: dict = {"style": subject.title, "rows": int(len(rows))}
-
-    def q(pos):
-        m = metrics.motion_quality(pos, skeleton, fps, units_per_meter=upm)
-        return {"skating_m_s": m.foot_skating_m_s, "bone_error_mean": m.bone_error_mean, "jitter_m_s3": m.jitter_m_s3}
-
-    out["capture_rows"] = q(outputs_positions(y_real, J))
-    out["teacher_forced"] = q(outputs_positions(hybrid, J))
-    model = PFNNModel.create(params, normalisers, J)
-    start_rows = style_rows(ds, subject.style)
-    speed = model.own_speed(ds, start_rows, upm, fps)
-    start = loop.start_row(ds.inputs, speed, units_per_meter=upm, rows=start_rows, fps=fps)
-    state = model.initial_state(ds, start)
-    blending = {}
-    closed = None
-    for follow in (None, loop.FOLLOW_SECONDS):
-        for bias in (0.5, 1.5, 3.0):
-            for name in ("straight", "zigzag"):
-                sig = paths.named(name, SECONDS, speed, units_per_meter=upm, fps=fps)
-                r = jax.tree.map(np.asarray, rollout(
-                    model.replace(blend_bias=bias), subject.conditioning, state,
-                    loop.signal_controls(sig, follow_seconds=follow)))
-                err = np.linalg.norm(r.origin - sig.positions, axis=-1)[-1] / upm
-                skate = metrics.foot_skating(r.positions, skeleton, fps, units_per_meter=upm)
-                blending[f"{name}, bias {bias:g}, {'follow' if follow else 'open loop'}"] = (float(err), skate)
-                if follow and bias == 1.5 and name == "straight":
-                    closed = r
-    out["blending"] = blending
-    out["closed_loop"] = q(closed.positions)
-    out["root_vs_foot"] = {"capture": _root_vs_foot(y_real, outputs_positions(y_real, J), skeleton, fps, upm),
-                           "closed_loop": _root_vs_foot(closed.outputs, closed.positions, skeleton, fps, upm)}
-    out["phase"] = {"capture": float(np.mean(y_real[:, 3]) * fps), "teacher_forced": float(np.mean(y_pred[:, 3]) * fps),
-                    "closed_loop": float(np.mean(np.mod(np.diff(closed.phase), 1.0)) * fps)}
-    walked = float(np.mean(np.linalg.norm(np.diff(closed.origin, axis=0), axis=-1)) * fps / upm)
-    out["speed_m_s"] = {"requested": speed, "closed_loop": walked}
-    norm = {}
-    for key, sl, unit in (("root velocity (m/frame)", g["root_velocity"], upm), ("turn (rad/frame)",
-                          g["root_angular_velocity"], 1.0), ("phase change (cycles/frame)", g["phase_change"], 1.0),
-                          ("joint positions (m)", g["joint_position"], upm)):
-        std = float(np.mean(y_norm.std[sl]))
-        rmse = float(np.sqrt(np.mean((y_pred[:, sl] - y_real[:, sl]) ** 2)))
-        norm[key] = (std / unit, rmse / std)
-    out["normalisation"] = norm
-    return out
-
-
-def diagnosis_lines(d: dict) -> list[str]:
-    """Markdown lines of :func:`diagnose`'s figures."""
-    lines = [f"**{d['style']}** ({d['rows']} capture rows of one clip)", "",
-             "| motion | skating m/s | bone error mean | jitter m/s^3 |", "|---|---|---|---|"]
-    for k, label in (("capture_rows", "capture rows"), ("teacher_forced", "teacher-forced (real root, predicted pose)"),
-                     ("closed_loop", "closed loop (straight, following)")):
-        v = d[k]
-        lines.append(f"| {label} | {v['skating_m_s']:.3f} | {100 * v['bone_error_mean']:.1f}% "
-                     f"| {v['jitter_m_s3']:.0f} |")
-    lines += ["", "| planted frames | root m/s | planted foot, character frame m/s | planted foot, world m/s |",
-              "|---|---|---|---|"]
-    for k, v in d["root_vs_foot"].items():
-        lines.append(f"| {k} | {v['root_m_s']:.3f} | {v['planted_foot_local_m_s']:.3f} | "
-                     f"{v['planted_foot_world_m_s']:.3f} |")
-    p, s = d["phase"], d["speed_m_s"]
-    lines += ["", f"phase advance (cycles/s): capture {p['capture']:.3f}, teacher-forced {p['teacher_forced']:.3f}, "
-              f"closed loop {p['closed_loop']:.3f}; speed requested {s['requested']:.2f} m/s, closed loop "
-              f"{s['closed_loop']:.2f} m/s", "", "| path, blend bias, law | final path error m | skating m/s |",
-              "|---|---|---|"]
-    lines += [f"| {k} | {e:.2f} | {sk:.3f} |" for k, (e, sk) in d["blending"].items()]
-    lines += ["", "| output group | std (m, rad or cycles) | teacher-forced RMSE / std |", "|---|---|---|"]
-    lines += [f"| {k} | {std:.4f} | {r:.2f} |" for k, (std, r) in d["normalisation"].items()]
-    return lines
-
-
-SLIDING_SOURCES = ("held", "easing", "free, slow", "free, fast")
-"""Where the skating left after foot locking comes from (:func:`sliding_sources`)."""
-
-
-def sliding_sources(e: Exported, skeleton: Motion, fps: float) -> dict[str, float]:
-    """Split the skating of the locked skeleton (:func:`jaxstyle.output.metrics.foot_skating`: the
-    horizontal travel of heels and toes over frame steps they spend within 1 cm of their floor) by
-    what the lock was doing with that point: ``held`` (locked in both frames), ``easing`` (free,
-    its offset from a release or hand-over still decaying, over 1 mm), ``free, slow`` (free, the
-    network's point slower than the touch-down speed) and ``free, fast`` (free, the network's point
-    moving along the floor faster than a contact may start). Returns each share of the total
-    travel (summing to 1; NaN without such steps)."""
-    feet = FootJoints.find(skeleton)
-    locked_pts = footlock.points_of(e.locked, feet)  # (T, 2, 2, 3)
-    net_pts = footlock.points_of(e.bvh, feet)
-    h = locked_pts[..., 1]
-    on = h <= np.percentile(h, 5, axis=0) + metrics.TOLERANCE_M * estimate_units_per_meter(skeleton)
-    planted = on[1:] & on[:-1]
-    travel = np.linalg.norm(np.diff(locked_pts[..., [0, 2]], axis=0), axis=-1)
-    held = e.lock.frames.locked[1:] & e.lock.frames.locked[:-1]
-    drawn = np.stack([e.lock.frames.ankle, e.lock.frames.toe], axis=2)
-    body = body_units_per_meter(skeleton, feet)
-    easing = np.linalg.norm(drawn - net_pts, axis=-1)[1:] > 0.001 * body
-    speed = np.linalg.norm(np.diff(net_pts[..., [0, 2]], axis=0), axis=-1) * fps / body
-    fast = speed >= footlock.FootLockConfig().speed_on_m_s
-    parts = {"held": held, "easing": ~held & easing, "free, slow": ~held & ~easing & ~fast,
-             "free, fast": ~held & ~easing & fast}
-    total = float(np.sum(travel[planted]))
-    return {k: float(np.sum(travel[planted & m])) / total if total > 0 else float("nan") for k, m in parts.items()}
-
-
 def lock_comparison(rows: list[dict]) -> list[str]:
     """Markdown lines comparing, on the same rollouts, the plain contact IK (:func:`pinned_feet`)
     with foot locking: per model, how many (character, path) rows meet each foot target after
@@ -670,7 +343,7 @@ def lock_comparison(rows: list[dict]) -> list[str]:
                      med(skate, 3), med(offset, 3), med(jerk, 0)]
             lines.append(f"| {model} | {name} | " + " | ".join(cells) + " |")
     lines += ["", "Where the skating left after locking comes from (median share of the travel of heels and toes "
-              "within 1 cm of the floor, :func:`jaxstyle.output.quality.sliding_sources`):", "",
+              "within 1 cm of the floor, :func:`jaxstyle.output.measure.sliding_sources`):", "",
               "| model | " + " | ".join(SLIDING_SOURCES) + " |", "|---|" + "---|" * len(SLIDING_SOURCES)]
     for model in dict.fromkeys(_model(r) for r in rows):
         mine = [r for r in rows if _model(r) == model and r["path"] != "capture" and "sliding_held" in r]

@@ -11,7 +11,7 @@ GIF of the exported skeletons side by side (:mod:`jaxstyle.output.preview`), per
 ``.npz`` (:mod:`jaxstyle.output.export`), and a table of :mod:`jaxstyle.output.metrics` figures beside
 those of real motion of each style: of the network's own joints, and of the exported skeleton (the
 BVH's, before and after foot locking) by the quality benchmark's
-:func:`jaxstyle.output.quality.measure`, so what a user sees in Blender is measured.
+:func:`jaxstyle.output.measure.measure`, so what a user sees in Blender is measured.
 
 Used by ``jaxstyle synthesize`` / ``jaxstyle demo`` (:mod:`jaxstyle.cli`).
 """
@@ -31,7 +31,7 @@ from jaxstyle.control.model import CharacterModel
 from jaxstyle.data import datasets
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
-from jaxstyle.output import drive, export, footlock, metrics, preview, quality
+from jaxstyle.output import drive, export, footlock, measure, metrics, preview, quality
 from jaxstyle.output.drive import Character
 
 
@@ -103,7 +103,7 @@ def write_results(out: str | os.PathLike, characters: Sequence, pairs: Sequence[
     metrics read the skeleton's joints (the LPN's extra hand points are left out), with the same
     functions for both models: :func:`jaxstyle.output.metrics.motion_quality` of the network's joints
     (the row's first columns, path error of the root joint's ground point) and the benchmark's
-    figures of the exported skeleton (:func:`jaxstyle.output.quality.measure`, :data:`EXPORTED_FIGURES`:
+    figures of the exported skeleton (:func:`jaxstyle.output.measure.measure`, :data:`EXPORTED_FIGURES`:
     skating of the BVH before and after foot locking, stepping after it, how far the lock moved a
     foot, how deep a foot goes below the floor, its bone error, the largest network-to-BVH joint
     distance, heading error, time to stop, ankle jerk). Returns the quality rows and the files written."""
@@ -117,7 +117,7 @@ def write_results(out: str | os.PathLike, characters: Sequence, pairs: Sequence[
     titles = [c.title for c in characters]
     ones = [jax.tree.map(lambda v, k=k: np.asarray(v[k]), rollouts) for k in range(len(pairs))]
     floor = footlock.skeleton_floor(skeleton)  # one skeleton for every rollout
-    shown = [quality.exported(one, skeleton, floor) for one in ones]
+    shown = [measure.exported(one, skeleton, floor) for one in ones]
 
     def drawn(e):
         return e.net if e.bvh is None else (e.locked if foot_lock else e.bvh)
@@ -140,7 +140,7 @@ def write_results(out: str | os.PathLike, characters: Sequence, pairs: Sequence[
         q = metrics.motion_quality(np.asarray(one.positions)[:, :joints], skeleton, fps, units_per_meter=upm,
                                    path_Tx2=signals[k].positions)
         row = {"style": c.title, "path": p, "foot_lock": bool(foot_lock), **q.as_row()}
-        measured = quality.measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
+        measured = measure.measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         row.update({key: measured.get(key, float("nan")) for key in EXPORTED_FIGURES})
         if e.lock is not None:
             motion = e.lock.motion if foot_lock else export.rollout_motion(one, skeleton)
@@ -156,7 +156,7 @@ def write_results(out: str | os.PathLike, characters: Sequence, pairs: Sequence[
             spec = quality.capture_spec(c.dataset, c.style)
             clip = datasets.load_clip(spec, fps=fps)
             q = metrics.reference_quality(clip, units_per_meter=upm)
-            real = quality.capture_figures(clip)
+            real = measure.capture_figures(clip)
             rows.append({"style": c.title, "path": f"real ({Path(spec.path).name})", **q.as_row(),
                          **{key: real[key] for key in EXPORTED_FIGURES}})
     files.append(write_quality(rows, out / "quality.csv"))
@@ -167,7 +167,7 @@ EXPORTED_FIGURES = ("foot_skating_bvh_m_s", "foot_skating_locked_m_s", "steps_pe
                     "slide_per_contact_m", "steps_per_s_bvh", "ik_foot_offset_max_m", "foot_below_floor_m",
                     "bone_error_bvh_max", "joint_difference_max_m", "heading_error_deg", "stop_time_s",
                     "ankle_jerk_m_s3", "ankle_jerk_locked_m_s3")
-"""The columns :func:`write_results` adds from :func:`jaxstyle.output.quality.measure`; the real
+"""The columns :func:`write_results` adds from :func:`jaxstyle.output.measure.measure`; the real
 clips' rows have the figures of their own skeleton there."""
 
 
