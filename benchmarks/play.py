@@ -55,11 +55,11 @@ from jaxstyle.mason2018 import pipeline
 from jaxstyle.mason2022 import pipeline as pipeline2022
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn, style_models
-from jaxstyle.play import session
+from jaxstyle.play import models
 from jaxstyle.train.defaults import LEARN_EPOCHS
 
 
-def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> session.PlayModel:
+def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> models.PlayModel:
     """A random PFNN of the demo's size with three random styles, on a procedural clip."""
     root = procedural.write_dataset(folder / "data", ["Neutral"], ["FW"], seconds=6.0)
     settings = pipeline.BaseSettings(data=str(root), styles=("Neutral",), hidden=hidden, rank=rank, epochs=1)
@@ -73,13 +73,13 @@ def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> session.
     skeleton = pipeline.datasets.load_clip(dataset.specs[0], fps=60.0)
     base = pipeline.Base(params, pfnn.stack_adapters(adapters[:1]), dataset.normalisers(), config, dataset, skeleton,
                          settings)
-    styles = {name: session.Style(name, "base", None, a) for name, a in zip(("A", "B", "C"), adapters, strict=True)}
+    styles = {name: models.Style(name, "base", None, a) for name, a in zip(("A", "B", "C"), adapters, strict=True)}
     upm = estimate_units_per_meter(skeleton)
     speed = PFNNModel.own_speed(dataset, style_rows(dataset, "Neutral"), upm)
-    return session.PlayModel(base, styles, upm, speed, folder)
+    return models.PlayModel(base, styles=styles, units_per_meter=upm, speed=speed, run_dir=folder)
 
 
-def random_lpn_model(folder: Path, hidden: int = 512) -> session.LPNPlayModel:
+def random_lpn_model(folder: Path, hidden: int = 512) -> models.LPNPlayModel:
     """A random LPN-FiLM (``hidden`` units, the demo's FiLM generator preset) on two procedural styles."""
     from jaxstyle.data import folders
 
@@ -90,7 +90,7 @@ def random_lpn_model(folder: Path, hidden: int = 512) -> session.LPNPlayModel:
     params = style_models.init_model(jax.random.PRNGKey(0), config)
     model = pipeline2022.Model(pipeline2022.MODEL, config, params,
                                pipeline2022.train_lpn.style_data(data.base, data.skeleton))
-    return session.lpn_play_model(synthesis2022.Loaded(model, data, folder / "lpn", 0), folder)
+    return models.lpn_play_model(synthesis2022.Loaded(model, data, folder / "lpn", 0), folder)
 
 
 def free_port() -> int:
@@ -275,11 +275,11 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         if args.model == "lpn-film":
-            model = session.load_any(args.run, "lpn-film") if args.run else random_lpn_model(Path(tmp), args.hidden)
+            model = models.load_any(args.run, "lpn-film") if args.run else random_lpn_model(Path(tmp), args.hidden)
             what = (f"{args.run or 'random'} {model.title} (hidden {model.loaded.model.config.hidden_size}, "
                     f"{model.loaded.model.config.num_experts} experts)")
         elif args.run:
-            model = session.load_model(args.run)
+            model = models.load_model(args.run)
             what = f"{args.run} (hidden {model.base.model.hidden_size}, rank {model.base.model.rank})"
         else:
             model = demo_size_model(Path(tmp))

@@ -33,17 +33,17 @@ from jaxstyle.mason2022 import pipeline as pipeline2022
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.motion.bvh import read_bvh
 from jaxstyle.nn import film_generator, pfnn, style_models
-from jaxstyle.play import learn, session
+from jaxstyle.play import learn, models, session
 from jaxstyle.play.frame import Steering, control_row, control_rows
+from jaxstyle.play.models import PlayError
 from jaxstyle.play.server import bone_transforms, ground_point
-from jaxstyle.play.session import PlayError
 from tests import test_synthesis_lpn
 
 STYLES = ("Neutral", "Crouched")
 
 
 def tiny_model(folder: Path, styles=STYLES, seconds: float = 6.0, hidden: int = 32, rank: int = 4
-               ) -> session.PlayModel:
+               ) -> models.PlayModel:
     """A :class:`PlayModel` with a random PFNN (no training) on procedural clips written to ``folder``;
     the adapters are random too, so the styles differ."""
     root = procedural.write_dataset(folder / "data", list(styles), ["FW"], seconds=seconds)
@@ -58,11 +58,11 @@ def tiny_model(folder: Path, styles=STYLES, seconds: float = 6.0, hidden: int = 
     adapters["b"] = adapters["b"] + 0.1 * jax.random.normal(keys[0], adapters["b"].shape)
     skeleton = pipeline.datasets.load_clip(dataset.specs[0], fps=60.0)
     base = pipeline.Base(params, adapters, dataset.normalisers(), config, dataset, skeleton, settings)
-    named = {s: session.Style(s, "base", None, jax.tree.map(lambda v, i=i: v[i], adapters))
+    named = {s: models.Style(s, "base", None, jax.tree.map(lambda v, i=i: v[i], adapters))
              for i, s in enumerate(dataset.styles)}
     upm = estimate_units_per_meter(skeleton)
     speed = PFNNModel.own_speed(dataset, style_rows(dataset, dataset.styles[0]), upm)
-    return session.PlayModel(base, named, upm, speed, Path(folder))
+    return models.PlayModel(base, styles=named, units_per_meter=upm, speed=speed, run_dir=Path(folder))
 
 
 def other_skeleton_bvh(path: Path) -> Path:
@@ -77,7 +77,7 @@ def other_skeleton_bvh(path: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def model(tmp_path_factory) -> session.PlayModel:
+def model(tmp_path_factory) -> models.PlayModel:
     return tiny_model(tmp_path_factory.mktemp("play"))
 
 
@@ -401,7 +401,7 @@ def random_params(config, seed: int = 1) -> dict:
     return jax.tree_util.tree_map_with_path(draw, shapes)
 
 
-def tiny_lpn_model(folder: Path) -> session.LPNPlayModel:
+def tiny_lpn_model(folder: Path) -> models.LPNPlayModel:
     """A :class:`LPNPlayModel` of a randomly initialised LPN-FiLM (no training) on two procedural
     training styles, and a new style "Limping" fine-tuned at two rates as
     :func:`jaxstyle.mason2022.pipeline.write_finetune` leaves it (the generators: the model's shifted
@@ -420,15 +420,15 @@ def tiny_lpn_model(folder: Path) -> session.LPNPlayModel:
     new = pipeline2022.train_lpn.style_data(data.new, data.skeleton, base=data.base)
     result = pipeline2022.FinetuneResult(("Limping",), (0.1, 0.5), gens, 0, 0.0, {}, after, np.array([1]), new)
     pipeline2022.write_finetune(result, folder / "lpn")
-    return session.lpn_play_model(synthesis2022.Loaded(model, data, folder / "lpn", 0), folder)
+    return models.lpn_play_model(synthesis2022.Loaded(model, data, folder / "lpn", 0), folder)
 
 
 @pytest.fixture(scope="module")
-def lpn_model(tmp_path_factory) -> session.LPNPlayModel:
+def lpn_model(tmp_path_factory) -> models.LPNPlayModel:
     return tiny_lpn_model(tmp_path_factory.mktemp("play_lpn"))
 
 
-def _film_vector(model: session.LPNPlayModel, generator: dict, data, style: str) -> np.ndarray:
+def _film_vector(model: models.LPNPlayModel, generator: dict, data, style: str) -> np.ndarray:
     """Independent of the session: the mean FiLM vector of ``style``'s training clips (section 4.4)."""
     s = data.styles.index(style)
     return np.mean(film_generator.clip_films(generator, data.clips[data.train_clips[s]]), axis=0)
@@ -542,7 +542,7 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
     config = pipeline2022.model_config(data.base, "PFNN FiLM", hidden=8, generator_hidden=16, filters=4)
     model = pipeline2022.Model("PFNN FiLM", config, random_params(config, seed=2),
                                pipeline2022.train_lpn.style_data(data.base, data.skeleton, backbone="pfnn"))
-    m = session.lpn_play_model(synthesis2022.Loaded(model, data, lpn_model.run_dir / "pfnn", 0), lpn_model.run_dir)
+    m = models.lpn_play_model(synthesis2022.Loaded(model, data, lpn_model.run_dir / "pfnn", 0), lpn_model.run_dir)
     assert m.key == "pfnn-film" and set(m.styles) == {"Neutral", "Crouched"}
     x_norm, y_norm = data.base.normalisers()
 
@@ -578,14 +578,14 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
 
 def test_run_folder_models_and_bad_choices(lpn_model, tmp_path, capsys):
     folder = lpn_model.run_dir
-    assert session.available_models(folder) == {}  # no config.json: this one was never trained
+    assert models.available_models(folder) == {}  # no config.json: this one was never trained
     (folder / "lpn" / "config.json").write_text("{}")
     pipeline2022.write_data_file(lpn_model.loaded.data, folder / "lpn")
-    assert session.available_models(folder) == {"lpn-film": "2022 LPN FiLM (Mason et al. 2022)"}
+    assert models.available_models(folder) == {"lpn-film": "2022 LPN FiLM (Mason et al. 2022)"}
     with pytest.raises(PlayError, match="no trained mann-film model"):
-        session.load_any(folder, "mann-film")
+        models.load_any(folder, "mann-film")
     with pytest.raises(JaxstyleError, match="no base model"):
-        session.load_any(tmp_path, "pfnn")
+        models.load_any(tmp_path, "pfnn")
     from jaxstyle.cli.main import main
 
     assert main(["play", "--run", str(folder), "--model", "pfnn"]) == 1
@@ -609,7 +609,7 @@ def test_play_a_trained_2022_model_from_its_run_folder(trained_lpn_run, model, t
     from jaxstyle.play.server import PlayServer
 
     run = trained_lpn_run[0]
-    assert session.available_models(run) == {"lpn-film": "2022 LPN FiLM (Mason et al. 2022)"}
+    assert models.available_models(run) == {"lpn-film": "2022 LPN FiLM (Mason et al. 2022)"}
     server = PlayServer(run, port=0).start(model=model, loop=False)  # a 2018 model, given, and RUN/lpn
     try:
         learner = server.learner

@@ -16,8 +16,8 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
 from jaxstyle.play import guard
+from jaxstyle.play.models import PlayError
 from jaxstyle.play.server import PlayServer
-from jaxstyle.play.session import PlayError
 from tests.test_play import other_skeleton_bvh, tiny_model
 from tests.test_play_browser import wait_for
 

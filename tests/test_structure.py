@@ -43,7 +43,7 @@ def test_layers_contract_is_kept(tree_copy):
     ("mason2022/train.py", "from jaxstyle.mason2018 import fewshot"),
     ("cli/play.py", "from jaxstyle.cli.main import build_parser"),
     ("output/quality.py", "from jaxstyle.output import synthesis"),
-    ("play/session.py", "from jaxstyle.play import learn"),
+    ("play/models.py", "from jaxstyle.play import session"),
     ("control/controller.py", "from jaxstyle.control import model"),
 ])
 def test_an_upward_import_breaks_the_contract(tree_copy, tmp_path, module, upward):

@@ -88,8 +88,8 @@ def _run_demo(run: Run, args) -> None:
 
 
 def run(args, run: Run) -> None:
+    from jaxstyle.play.models import PlayError, available_models
     from jaxstyle.play.server import PlayServer
-    from jaxstyle.play.session import PlayError, available_models
 
     check_positive(args, "learn_epochs", "record_seconds", "max_upload_mb")
     if args.token is not None and not re.fullmatch(r"[A-Za-z0-9_-]{8,128}", args.token):

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 from urllib.parse import urlsplit
 
-from jaxstyle.play.session import PlayError
+from jaxstyle.play.models import PlayError
 
 LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]")
 EVERY_INTERFACE = ("0.0.0.0", "::", "")

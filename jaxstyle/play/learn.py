@@ -25,7 +25,7 @@ from typing import Callable, Sequence
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.mason2018 import pipeline
 from jaxstyle.motion.bvh import read_bvh_names
-from jaxstyle.play.session import PlayError, PlayModel, Style, learned_root
+from jaxstyle.play.models import PlayError, PlayModel, Style, learned_root
 from jaxstyle.train.defaults import DEFAULT_RATES, LEARN_EPOCHS
 
 STAGES = ("reading the clip", "fine-tuning", "closed-loop checks", "done")

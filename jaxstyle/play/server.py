@@ -49,16 +49,18 @@ import numpy as np
 
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.play import guard, learn
-from jaxstyle.play.session import (
+from jaxstyle.play.models import (
     PFNN,
     PLAY_DIR,
     AnyPlayModel,
     PlayError,
     PlayModel,
-    Session,
     Style,
     available_models,
     load_any,
+)
+from jaxstyle.play.session import (
+    Session,
     save_recording,
 )
 
@@ -141,7 +143,7 @@ class PlayServer:
     (the 2018 model's; ``None`` without one).
 
     ``model``: the model to start with (``pfnn`` or a 2022 key such as ``lpn-film``,
-    :func:`jaxstyle.play.session.available_models`); default the run's 2018 model when it has one.
+    :func:`jaxstyle.play.models.available_models`); default the run's 2018 model when it has one.
     """
 
     def __init__(self, run_dir: str | Path, *, host: str = "127.0.0.1", port: int = 8080,
