@@ -40,7 +40,7 @@ import numpy as np
 
 import jaxstyle as js
 from jaxstyle.data import datasets, folders
-from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import finetune, pipeline, report
 
 ORDER = ("PFNN One-hot", "LPN One-hot", "PFNN Resad", "LPN Resad", "LPN FiLM", "PFNN FiLM", "MANN FiLM")
 """The default order: the cheap one-hot and adapter models first (time they leave unused goes to the
@@ -62,7 +62,7 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=60.0, help="wall-clock budget of the whole run")
     parser.add_argument("--max-epochs", type=int, default=90, help="at most this many epochs per model (paper: 90)")
     parser.add_argument("--finetune-steps", type=int, default=150, help="at most this many steps per (style, rate)")
-    parser.add_argument("--rates", type=float, nargs="+", default=list(pipeline.FINETUNE_RATES))
+    parser.add_argument("--rates", type=float, nargs="+", default=list(finetune.FINETUNE_RATES))
     parser.add_argument("--max-seconds", type=float, help="use only the first seconds of each clip (quick checks)")
     parser.add_argument("--data", type=Path, help="a style folder (default: the shared 100STYLE sample)")
     parser.add_argument("--hidden", type=int, default=512, help="hidden units (paper: 512; smaller: quick checks)")
@@ -85,8 +85,8 @@ def main() -> None:
     gaits = datasets.GAITS_100STYLE if (root / "Frame_Cuts.csv").is_file() else None
     data = pipeline.build_data(root, styles, new_styles, gaits=gaits, cache=args.cache,
                                max_seconds=args.max_seconds, progress=show)
-    finetune = pipeline.MODEL in args.models and args.finetune_steps > 0
-    jobs = len(args.models) + int(finetune)
+    tune_new = pipeline.MODEL in args.models and args.finetune_steps > 0
+    jobs = len(args.models) + int(tune_new)
     lines = [f"base styles: {', '.join(data.base.styles)}; new styles: {', '.join(data.new.styles)}; "
              f"{int((data.base.split == 0).sum()):,} training rows; budget {args.minutes:g} min for the whole run "
              f"(data ready after {(time.perf_counter() - t_start) / 60:.1f} min), split evenly over the {jobs} jobs "
@@ -106,19 +106,19 @@ def main() -> None:
         print(f"{name}: {run.epochs} epochs ({run.stopped}) in {run.seconds / 60:.1f} min of a {share / 60:.1f} min "
               f"share; validation MSE {logs[name]['val_mse'][-1]:.4f}; test MSE {np.mean(results[name]['mse']):.4f}",
               flush=True)
-        partial = lines + pipeline.budget_table(runs, logs) + [""] + pipeline.models_table(data.base.styles, results)
+        partial = lines + report.budget_table(runs, logs) + [""] + report.models_table(data.base.styles, results)
         (args.out / "results.md").write_text("\n".join(partial) + "\n\n(partial: the run goes on)\n")
-        pipeline.curves_figure(logs, args.out / "curves.png")
-    lines += pipeline.budget_table(runs, logs)
+        report.curves_figure(logs, args.out / "curves.png")
+    lines += report.budget_table(runs, logs)
     lines += ["", "Test rows, dropout off: mean over styles, then per style MSE / BLL:", ""]
-    lines += pipeline.models_table(data.base.styles, results)
-    lines += ["", *pipeline.ordering_lines(results)]
-    curves = pipeline.curves_figure(logs, args.out / "curves.png",
+    lines += report.models_table(data.base.styles, results)
+    lines += ["", *report.ordering_lines(results)]
+    curves = report.curves_figure(logs, args.out / "curves.png",
                                     title=f"Validation MSE, {len(data.base.styles)} styles of "
                                           f"{'the shared 100STYLE sample' if args.data is None else root.name}, "
                                           f"{args.minutes:g}-minute budget")
     files = [curves]
-    if finetune:
+    if tune_new:
         model = runs[pipeline.MODEL].model
         share = max(0.0, deadline - time.perf_counter())
         log = logs[pipeline.MODEL]
@@ -128,10 +128,10 @@ def main() -> None:
         steps = int(np.clip(0.8 * share / (SWEEP_STEP_COST * pairs * step_s), 1, args.finetune_steps))
         print(f"fine-tuning: {share / 60:.1f} min left, {step_s:.2f} s per LPN-FiLM training step -> {steps} steps "
               f"per (style, rate)", flush=True)
-        result = pipeline.finetune_sweep(model, data, rates=args.rates, steps=steps, progress=show)
-        lines += ["", pipeline.finetune_summary(result), "", *pipeline.finetune_table(result)]
-        files += [*pipeline.write_finetune(result, args.out).values(),
-                  pipeline.film_figure(model, result, args.out / "figure11.png")]
+        result = finetune.finetune_sweep(model, data, rates=args.rates, steps=steps, progress=show)
+        lines += ["", report.finetune_summary(result), "", *report.finetune_table(result)]
+        files += [*finetune.write_finetune(result, args.out).values(),
+                  report.film_figure(model, result, args.out / "figure11.png")]
     lines += ["", "wrote " + ", ".join(map(str, files)),
               f"whole run: {(time.perf_counter() - t_start) / 60:.1f} min (budget {args.minutes:g} min)"]
     print("\n".join(lines[2:]))

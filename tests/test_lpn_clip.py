@@ -1,4 +1,4 @@
-"""New styles the 2022 way from the user's own BVH clips (:func:`jaxstyle.mason2022.pipeline.finetune_clips`,
+"""New styles the 2022 way from the user's own BVH clips (:func:`jaxstyle.mason2022.finetune.finetune_clips`,
 ``jaxstyle lpn --clip``): one vmapped FiLM-generator sweep over rates, validation, a closed-loop
 check with the 2022 controller, a chosen rate, the generator written; bad clips refused in one line.
 
@@ -21,7 +21,7 @@ from jaxstyle.control.model import rollout
 from jaxstyle.data import procedural
 from jaxstyle.data.folders import PipelineError
 from jaxstyle.data.lpn_features import bone_points
-from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import finetune, pipeline, report
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.output import check as check_lib
@@ -60,12 +60,12 @@ def test_choose_checked_prefers_passing_rates():
 def test_film_sweep_from_a_user_clip_chooses_a_rate_and_writes_its_generator(folders, model, tmp_path):
     _, clip, cache = folders
     data, m = model
-    data = pipeline.user_clip_data(data, [clip], mirror=False, cache=cache)
+    data = finetune.user_clip_data(data, [clip], mirror=False, cache=cache)
     assert data.new.styles == ("Limping_FW",) and len(data.new.specs) == 1
     rates = (0.1, 0.5)
-    result, checked, paths = pipeline.finetune_clips(m, data, tmp_path / "out", rates=rates, steps=3, progress=False)
+    result, checked, paths = finetune.finetune_clips(m, data, tmp_path / "out", rates=rates, steps=3, progress=False)
     assert result.styles == ("Limping_FW",) and result.rates == rates and result.steps == 3
-    for k in pipeline.CHECK_FIELDS:
+    for k in finetune.CHECK_FIELDS:
         assert checked[k].shape == (1, 2)
     # the choice: the lowest validation loss among the rates that passed the check (else among all)
     val = result.after["validation"]["mse"] + result.after["validation"]["bll"]
@@ -78,7 +78,7 @@ def test_film_sweep_from_a_user_clip_chooses_a_rate_and_writes_its_generator(fol
     leaf = lambda g: np.asarray(jax.tree.leaves(g)[-1])  # noqa: E731
     assert not np.allclose(leaf(tuned[0]), leaf(g0)) and not np.allclose(leaf(tuned[0]), leaf(tuned[1]))
     # the chosen generator is written and loads back exactly
-    loaded = pipeline.load_generator(paths["generator Limping_FW"], g0)
+    loaded = finetune.load_generator(paths["generator Limping_FW"], g0)
     jax.tree.map(np.testing.assert_array_equal, loaded, tuned[int(result.chosen[0])])
     chosen = json.loads(paths["chosen"].read_text())["Limping_FW"]
     assert chosen["rate"] == result.chosen_rate("Limping_FW") and isinstance(chosen["check_passed"], bool)
@@ -98,7 +98,7 @@ def test_film_sweep_from_a_user_clip_chooses_a_rate_and_writes_its_generator(fol
     origin = np.asarray(alone.origin)
     progress = np.sum(np.linalg.norm(np.diff(origin, axis=0), axis=-1)) / (speed * 5.0)
     np.testing.assert_allclose(checked["progress"][0, c], progress, rtol=1e-4)
-    lines = pipeline.check_table(result, checked)
+    lines = report.check_table(result, checked)
     assert lines[2].startswith("| Limping_FW | ") and ("passed" in lines[2] or "FAILED" in lines[2])
 
 
@@ -106,16 +106,16 @@ def test_bad_user_clips_are_refused_in_one_line(folders, base_data, tmp_path):
     _, clip, cache = folders
     data = base_data
     with pytest.raises(PipelineError, match=r"shorter than the trajectory window") as e:
-        pipeline.user_clip_data(data, [clip], seconds=(0.0, 1.0), cache=cache)
+        finetune.user_clip_data(data, [clip], seconds=(0.0, 1.0), cache=cache)
     assert "\n" not in str(e.value) and str(clip) in str(e.value)
     with pytest.raises(PipelineError, match=r"no 240-frame style clip inside its training rows") as e:
-        pipeline.user_clip_data(data, [clip], seconds=(0.0, 4.5), cache=cache)
+        finetune.user_clip_data(data, [clip], seconds=(0.0, 4.5), cache=cache)
     assert "\n" not in str(e.value)
     other = tmp_path / "Other.bvh"  # another skeleton: a joint renamed
     other.write_text(re.sub(r"JOINT Neck1\b", "JOINT Neck2", clip.read_text(), count=1))
     renamed = r"Other.bvh: its skeleton has joint \d+ is 'Neck2' where the model's is 'Neck1'"
     with pytest.raises(PipelineError, match=renamed) as e:
-        pipeline.user_clip_data(data, [other], cache=cache)
+        finetune.user_clip_data(data, [other], cache=cache)
     assert "\n" not in str(e.value)
 
 
@@ -152,7 +152,7 @@ def test_jaxstyle_lpn_clip(folders, tmp_path, capsys):
 def test_train_lpn_style_data_of_clips_normalises_with_the_base(folders, model):
     _, clip, cache = folders
     data, m = model
-    data = pipeline.user_clip_data(data, [clip], cache=cache)  # mirrored: two clips, one style
+    data = finetune.user_clip_data(data, [clip], cache=cache)  # mirrored: two clips, one style
     assert len(data.new.specs) == 2 and data.new.styles == ("Limping_FW",)
     new = train_lpn.style_data(data.new, data.skeleton, base=data.base)
     x_norm, _ = data.base.normalisers()

@@ -11,7 +11,7 @@ import pytest
 
 from jaxstyle.data import folders, procedural
 from jaxstyle.mason2018 import pipeline as pipeline2018
-from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import finetune, pipeline, report
 from jaxstyle.output import check as check_lib
 
 
@@ -40,20 +40,20 @@ def test_build_train_finetune_select_report(tiny, tmp_path):
     config = pipeline.model_config(data.base, hidden=8, generator_hidden=16, filters=4)
     assert config.input_size == data.base.inputs.shape[1] and config.generator.film_size == 32
     model = pipeline.train_model(data, config, tmp_path / "lpn", epochs=1, progress=False)
-    assert pipeline.losses_table(model.data.styles, pipeline.model_losses(model))[2].startswith("| Neutral | ")
-    result = pipeline.finetune_sweep(model, data, rates=(0.1, 0.5), steps=2, progress=False)
+    assert report.losses_table(model.data.styles, pipeline.model_losses(model))[2].startswith("| Neutral | ")
+    result = finetune.finetune_sweep(model, data, rates=(0.1, 0.5), steps=2, progress=False)
     assert result.styles == ("Limping",) and result.rates == (0.1, 0.5) and result.steps == 2
     assert result.after["test"]["mse"].shape == (1, 2) and np.isfinite(result.after["test"]["mse"]).all()
     assert result.chosen_rate("Limping") in (0.1, 0.5)
-    lines = pipeline.finetune_table(result)
+    lines = report.finetune_table(result)
     assert lines[0].startswith("| new style | test MSE before | after @ 0.1 | after @ 0.5 | chosen rate |")
     assert any("(chosen)" in line for line in lines)
-    paths = pipeline.write_finetune(result, tmp_path / "out")
+    paths = finetune.write_finetune(result, tmp_path / "out")
     chosen = json.loads(paths["chosen"].read_text())
     assert chosen["Limping"]["rate"] == result.chosen_rate("Limping")
     with np.load(paths["generators"]) as z:
         assert all(z[k].shape[:2] == (1, 2) for k in z.files)
-    assert pipeline.film_figure(model, result, tmp_path / "out" / "figure11.png").is_file()
+    assert report.film_figure(model, result, tmp_path / "out" / "figure11.png").is_file()
 
 
 # all three slow (17-40 s each): the default run checks the PFNN gate is the labeller's global phase
@@ -80,9 +80,9 @@ def test_the_pfnn_backbones_train_on_the_global_phase_within_a_budget(tiny, tmp_
     assert (again.epochs, again.stopped) == (2, "max epochs")
     log = pipeline.read_log(tmp_path / "m")
     assert log["epoch"].tolist() == [1, 2] and np.isfinite(log["val_mse"]).all()
-    table = pipeline.budget_table({name: again}, {name: log})
+    table = report.budget_table({name: again}, {name: log})
     assert table[2].startswith(f"| {name} | 2 | max epochs | ")
-    assert pipeline.curves_figure({name: log}, tmp_path / "curves.png").is_file()
+    assert report.curves_figure({name: log}, tmp_path / "curves.png").is_file()
 
 
 def test_model_config_refuses_a_dataset_without_global_phase(tiny):
@@ -103,12 +103,12 @@ def test_flattened_and_the_paper_ordering_lines():
     r = {n: {"mse": np.array([m, m]), "bll": np.array([0.0, 0.0])}
          for n, m in (("LPN FiLM", 0.1), ("PFNN FiLM", 0.2), ("LPN One-hot", 0.15), ("PFNN Resad", 0.3),
                       ("LPN Resad", 0.25))}
-    lines = pipeline.ordering_lines(r)
+    lines = report.ordering_lines(r)
     assert lines[0].startswith("ranked by test MSE + BLL (lowest first): LPN FiLM 0.1000, LPN One-hot 0.1500")
     assert "does not hold (worst FiLM PFNN FiLM 0.2000, best other LPN One-hot 0.1500)" in lines[1]
     assert "PFNN Resad below LPN Resad: does not hold (0.3000 vs 0.2500)" in lines[2]
     r["PFNN FiLM"] = {"mse": np.array([0.12]), "bll": np.array([0.0])}
-    assert ": holds" in pipeline.ordering_lines(r)[1]
+    assert ": holds" in report.ordering_lines(r)[1]
 
 
 def test_every_command_module_is_a_thin_parser_and_run():

@@ -29,6 +29,7 @@ from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline
+from jaxstyle.mason2022 import finetune as finetune2022
 from jaxstyle.mason2022 import pipeline as pipeline2022
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.motion.bvh import read_bvh
@@ -404,7 +405,7 @@ def random_params(config, seed: int = 1) -> dict:
 def tiny_lpn_model(folder: Path) -> models.LPNPlayModel:
     """A :class:`LPNPlayModel` of a randomly initialised LPN-FiLM (no training) on two procedural
     training styles, and a new style "Limping" fine-tuned at two rates as
-    :func:`jaxstyle.mason2022.pipeline.write_finetune` leaves it (the generators: the model's shifted
+    :func:`jaxstyle.mason2022.finetune.write_finetune` leaves it (the generators: the model's shifted
     by a constant per rate, as ``tests/test_synthesis_lpn.py`` does, so the chosen one is told apart)."""
     root = procedural.write_dataset(folder / "data", ["Neutral", "Crouched", "Limping"], ["FW"], seconds=7,
                                     progress=False)
@@ -416,10 +417,10 @@ def tiny_lpn_model(folder: Path) -> models.LPNPlayModel:
                                pipeline2022.train_lpn.style_data(data.base, data.skeleton))
     gens = jax.tree.map(lambda v: np.stack([np.stack([np.asarray(v) + 0.01, np.asarray(v) - 0.02])]),
                         params["style"]["generator"])
-    after = {split: {"mse": np.full((1, 2), 0.5), "bll": np.full((1, 2), 0.01)} for split in pipeline2022.SPLITS}
+    after = {split: {"mse": np.full((1, 2), 0.5), "bll": np.full((1, 2), 0.01)} for split in finetune2022.SPLITS}
     new = pipeline2022.train_lpn.style_data(data.new, data.skeleton, base=data.base)
-    result = pipeline2022.FinetuneResult(("Limping",), (0.1, 0.5), gens, 0, 0.0, {}, after, np.array([1]), new)
-    pipeline2022.write_finetune(result, folder / "lpn")
+    result = finetune2022.FinetuneResult(("Limping",), (0.1, 0.5), gens, 0, 0.0, {}, after, np.array([1]), new)
+    finetune2022.write_finetune(result, folder / "lpn")
     return models.lpn_play_model(synthesis2022.Loaded(model, data, folder / "lpn", 0), folder)
 
 

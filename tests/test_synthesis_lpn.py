@@ -16,7 +16,7 @@ from jaxstyle.cli.main import main
 from jaxstyle.control import paths
 from jaxstyle.data import folders, procedural
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import finetune, pipeline
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import metrics
 from jaxstyle.output.drive import blend_character
@@ -27,7 +27,7 @@ from jaxstyle.output.synthesis import quality_table
 def run_dir(tmp_path_factory):
     """A run folder as ``jaxstyle lpn`` leaves it: RUN/lpn with a tiny LPN-FiLM (1 epoch) trained on
     two procedural styles, and the files of a FiLM fine-tuning on a third style at two rates
-    (:func:`jaxstyle.mason2022.pipeline.write_finetune`; the generators are the trained one shifted
+    (:func:`jaxstyle.mason2022.finetune.write_finetune`; the generators are the trained one shifted
     by a different constant per rate, so the chosen rate's generator is told apart; the sweep
     itself is tested in test_pipeline_2022.py)."""
     root = procedural.write_dataset(tmp_path_factory.mktemp("data") / "procedural",
@@ -40,10 +40,10 @@ def run_dir(tmp_path_factory):
     model = pipeline.train_model(data, config, run / "lpn", epochs=1, progress=False)
     gen = model.params["style"]["generator"]
     gens = jax.tree.map(lambda v: np.stack([np.stack([np.asarray(v) + 0.01, np.asarray(v) - 0.02])]), gen)
-    after = {split: {"mse": np.full((1, 2), 0.5), "bll": np.full((1, 2), 0.01)} for split in pipeline.SPLITS}
+    after = {split: {"mse": np.full((1, 2), 0.5), "bll": np.full((1, 2), 0.01)} for split in finetune.SPLITS}
     new = pipeline.train_lpn.style_data(data.new, data.skeleton, base=data.base)
-    result = pipeline.FinetuneResult(("Limping",), (0.1, 0.5), gens, 0, 0.0, {}, after, np.array([1]), new)
-    pipeline.write_finetune(result, run / "lpn")
+    result = finetune.FinetuneResult(("Limping",), (0.1, 0.5), gens, 0, 0.0, {}, after, np.array([1]), new)
+    finetune.write_finetune(result, run / "lpn")
     return run, model, data, result
 
 

@@ -161,7 +161,7 @@ def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
     """The 2022 pipeline end to end: LPN rows, a style model (the demo's smaller FiLM generator),
     FiLM fine-tuning on the held-out styles, characters (and a FiLM blend) along the paths."""
     from jaxstyle.data import folders
-    from jaxstyle.mason2022 import pipeline
+    from jaxstyle.mason2022 import finetune, pipeline, report
     from jaxstyle.mason2022 import synthesis as synthesis2022
 
     check_positive(args, "lpn_epochs", "hidden", "generator_hidden", "filters", "learning_rate")
@@ -187,16 +187,16 @@ def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
     model = pipeline.train_model(data, config, run.dir / "lpn", name=name, epochs=args.lpn_epochs,
                                  progress=progress(args), learning_rate=args.learning_rate)
     run.say(f"{name} ready ({elapsed(t0)})")
-    for line in pipeline.losses_table(model.data.styles, pipeline.model_losses(model)):
+    for line in report.losses_table(model.data.styles, pipeline.model_losses(model)):
         run.say(line)
     files = [run.dir / "lpn"]
     sets = []
     if config.modulation == "film" and args.finetune_steps > 0 and data.new is not None:
-        result = pipeline.finetune_sweep(model, data, rates=DEMO_FINETUNE_RATES, steps=args.finetune_steps,
+        result = finetune.finetune_sweep(model, data, rates=DEMO_FINETUNE_RATES, steps=args.finetune_steps,
                                          progress=progress(args))
-        for line in ["", pipeline.finetune_summary(result), *pipeline.finetune_table(result)]:
+        for line in ["", report.finetune_summary(result), *report.finetune_table(result)]:
             run.say(line)
-        files += list(pipeline.write_finetune(result, run.dir / "lpn").values())
+        files += list(finetune.write_finetune(result, run.dir / "lpn").values())
         sets = list(result.styles[:1])
     loaded = synthesis2022.Loaded(model, data, run.dir / "lpn", args.lpn_epochs)
     base_styles = [s for s in ("Neutral", "Crouched") if s in model.data.styles] or list(model.data.styles[:2])

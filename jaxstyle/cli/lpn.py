@@ -98,7 +98,7 @@ def _sync(args) -> None:
 
 def _run(args, run: Run, out: Path, cache: Path | None) -> None:
     from jaxstyle.data import folders
-    from jaxstyle.mason2022 import pipeline
+    from jaxstyle.mason2022 import finetune, pipeline, report
 
     check_positive(args, "epochs", "hidden", "generator_hidden", "filters")
     if args.finetune_steps < 0:
@@ -118,7 +118,7 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
     data = pipeline.build_data(root, styles, new_styles, gaits=args.gaits, max_seconds=args.max_seconds,
                                cache=cache, progress=progress(args), joint_map=joint_map(args))
     if args.clip:
-        data = pipeline.user_clip_data(data, args.clip, mirror=not args.asymmetric,
+        data = finetune.user_clip_data(data, args.clip, mirror=not args.asymmetric,
                                        seconds=tuple(args.clip_range) if args.clip_range else None,
                                        joint_map=joint_map(args), cache=cache, progress=progress(args))
         run.say(f"new styles from your clips: {', '.join(data.new.styles)} ({len(data.new.specs)} clip(s), mirrors "
@@ -130,26 +130,26 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
                                  **_speed_options(args))
     run.say(f"LPN-FiLM ({args.hidden} hidden, {args.epochs} epochs, {int((data.base.split == 0).sum()):,} training "
             f"rows) ready in {elapsed(t0)}: {run.dir / 'lpn'}")
-    for line in pipeline.losses_table(model.data.styles, pipeline.model_losses(model)):
+    for line in report.losses_table(model.data.styles, pipeline.model_losses(model)):
         run.say(line)
     lines, files = [], [out, out / "results.md"]
     if args.clip:
-        result, checked, paths = pipeline.finetune_clips(model, data, out, rates=args.rates,
+        result, checked, paths = finetune.finetune_clips(model, data, out, rates=args.rates,
                                                          steps=args.finetune_steps, progress=progress(args))
-        lines = [*pipeline.check_table(result, checked), "", *pipeline.finetune_table(result, checked=True)]
-        for line in ["", pipeline.finetune_summary(result) + "; then a closed-loop check of every pair", *lines]:
+        lines = [*report.check_table(result, checked), "", *report.finetune_table(result, checked=True)]
+        for line in ["", report.finetune_summary(result) + "; then a closed-loop check of every pair", *lines]:
             run.say(line)
         run.say("chosen rates: " + ", ".join(f"{s} {result.chosen_rate(s):g}" for s in result.styles))
         files += list(paths.values())
     elif args.finetune_steps > 0:
-        result = pipeline.finetune_sweep(model, data, rates=args.rates, steps=args.finetune_steps,
+        result = finetune.finetune_sweep(model, data, rates=args.rates, steps=args.finetune_steps,
                                          progress=progress(args))
-        lines = pipeline.finetune_table(result)
-        for line in ["", pipeline.finetune_summary(result), *lines]:
+        lines = report.finetune_table(result)
+        for line in ["", report.finetune_summary(result), *lines]:
             run.say(line)
         run.say("chosen rates: " + ", ".join(f"{s} {result.chosen_rate(s):g}" for s in result.styles))
-        files += list(pipeline.write_finetune(result, out).values())
-        files.append(pipeline.film_figure(model, result, out / "figure11.png"))
+        files += list(finetune.write_finetune(result, out).values())
+        files.append(report.film_figure(model, result, out / "figure11.png"))
     (out / "results.md").write_text("\n".join(lines) + "\n")
     written(run, "written", files)
 

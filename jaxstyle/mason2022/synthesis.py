@@ -130,7 +130,7 @@ def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None 
 
 
 def _generators(model: pipeline.Model, path: Path) -> dict:
-    """The fine-tuned generators of :func:`jaxstyle.mason2022.pipeline.write_finetune` (leading axes
+    """The fine-tuned generators of :func:`jaxstyle.mason2022.finetune.write_finetune` (leading axes
     (new style, rate)) in the tree structure of ``model``'s generator."""
     like = model.params["style"]["generator"]
     with np.load(path) as z:

@@ -1,6 +1,6 @@
 """The closed-loop check of fine-tuned new styles and the rate choice, both papers' (the 2018
 adapters' few-shot sweep, :mod:`jaxstyle.mason2018.selection`; the 2022 FiLM generators' sweep,
-:func:`jaxstyle.mason2022.pipeline.closed_loop_check`).
+:func:`jaxstyle.mason2022.finetune.closed_loop_check`).
 
 Each paper drives its fine-tuned pairs (style x dropout rate) and the model before fine-tuning
 along the check's path (:class:`jaxstyle.train.defaults.RolloutCheck`); what is measured of a

@@ -21,7 +21,7 @@ FILM_DEFAULT_RATES: tuple[float, ...] = (0.1, 0.3, 0.5)
 class RolloutCheck:
     """The closed-loop check of a fine-tuned new style, both papers' (the 2018 adapters' in
     :mod:`jaxstyle.mason2018.selection`, the 2022 FiLM generators' in
-    :func:`jaxstyle.mason2022.pipeline.closed_loop_check`): the controller drives the style
+    :func:`jaxstyle.mason2022.finetune.closed_loop_check`): the controller drives the style
     ``seconds`` along a path turning at ``turn_deg_per_s`` at the clip's median speed, from a frame
     of the clip. It passes when the rollout stays finite, the bones keep their lengths (mean
     relative error at most ``max_bone_error``), the feet touch the floor at least

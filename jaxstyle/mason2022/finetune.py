@@ -1,0 +1,283 @@
+"""New styles for a trained 2022 model (Mason, Starke & Komura 2022 section 5): its FiLM generator
+alone fine-tuned on a new style's clips for every (new style, dropout rate) pair in one compiled
+program (:func:`finetune_sweep`), every pair validated and driven closed-loop with the model's
+:class:`jaxstyle.control.lpn_controller.StyleNetModel` (:func:`closed_loop_check`; the measures,
+pass rule and rate choice are the 2018 sweep's, :mod:`jaxstyle.output.check`), the user's own clips
+as new styles (:func:`user_clip_data`, :func:`finetune_clips`), and the files written
+(:func:`write_finetune`, :func:`load_generator`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+from typing import Sequence
+
+import jax
+import numpy as np
+
+from jaxstyle.data import datasets
+from jaxstyle.data.folders import PipelineError, user_clip_specs
+from jaxstyle.mason2022 import train as train_lpn
+from jaxstyle.mason2022.pipeline import LPNData, Model
+from jaxstyle.nn import film_generator as film
+from jaxstyle.output.check import choose_rates
+from jaxstyle.train import defaults
+from jaxstyle.train.checkpoint import json_text
+from jaxstyle.train.defaults import FILM_DEFAULT_RATES
+
+FINETUNE_RATES = FILM_DEFAULT_RATES
+"""Dropout rates of the FiLM fine-tuning sweep."""
+@dataclasses.dataclass(frozen=True)
+class FinetuneResult:
+    """A FiLM fine-tuning sweep: ``generators`` with leading axes ``(style, rate)``; ``before``
+    (per split: ``{"mse", "bll"}`` of shape ``(S,)``) and ``after`` (``(S, R)``) on the new styles'
+    validation and test rows; the ``chosen`` rate index per style; the new styles' ``data``."""
+
+    styles: tuple[str, ...]
+    rates: tuple[float, ...]
+    generators: dict
+    steps: int
+    seconds: float
+    before: dict[str, dict[str, np.ndarray]]
+    after: dict[str, dict[str, np.ndarray]]
+    chosen: np.ndarray
+    data: train_lpn.StyleData
+
+    def chosen_rate(self, style: str) -> float:
+        return self.rates[int(self.chosen[self.styles.index(style)])]
+
+    def params(self, model: Model, style: str, rate_index: int | None = None) -> dict:
+        """The model with one new style's fine-tuned generator, at its chosen rate unless ``rate_index``."""
+        s = self.styles.index(style)
+        return train_lpn.with_generator(model.params, self.generators, s,
+                                        int(self.chosen[s]) if rate_index is None else rate_index)
+
+
+SPLITS = ("validation", "test")
+
+
+def finetune_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FINETUNE_RATES, steps: int = 150,
+                   epochs: int = 100, chunk_steps: int = 10, progress: bool = True) -> FinetuneResult:
+    """Fine-tune ``model``'s FiLM generator on every new style of ``data`` at every dropout rate,
+    at most ``steps`` steps each (over at most ``epochs`` epochs), in one compiled sweep
+    (:func:`jaxstyle.mason2022.train.finetune_film_sweep`); test every pair and the model as it was on
+    the new styles' validation and test rows, and choose a rate per style
+    (:func:`jaxstyle.output.check.choose_rates` on validation alone)."""
+    if model.config.modulation != "film":
+        raise PipelineError(f"{model.name}: only a FiLM model's generator can be fine-tuned on new styles")
+    if data.new is None:
+        raise PipelineError("no new styles to fine-tune on")
+    if steps < 1 or not rates or any(not 0 <= r < 1 for r in rates):
+        raise PipelineError(f"need steps >= 1 and dropout rates in [0, 1), got {steps} and {list(rates)}")
+    new = train_lpn.style_data(data.new, data.skeleton, base=data.base, backbone=model.config.backbone)
+    config = train_lpn.FiLMFinetuneConfig(rates=tuple(float(r) for r in rates), max_steps=steps, epochs=epochs)
+    t0 = time.perf_counter()
+    gens, per_step = train_lpn.finetune_film_sweep(model.params, model.config, new, config, chunk_steps=chunk_steps,
+                                                   progress=progress)
+    seconds = time.perf_counter() - t0
+    shape = (len(new.styles), len(config.rates))
+    before = {split: train_lpn.evaluate(model.params, model.config, new, split) for split in SPLITS}
+    after = {split: {"mse": np.full(shape, np.nan), "bll": np.full(shape, np.nan)} for split in SPLITS}
+    for s in range(shape[0]):
+        for r in range(shape[1]):
+            tuned = train_lpn.with_generator(model.params, gens, s, r)
+            for split in SPLITS:
+                losses = train_lpn.evaluate(tuned, model.config, new, split, styles=[s])
+                for k in ("mse", "bll"):
+                    after[split][k][s, r] = losses[k][0]
+    chosen, _ = choose_rates(after["validation"]["mse"] + after["validation"]["bll"])
+    return FinetuneResult(tuple(new.styles), config.rates, gens, int(per_step.shape[2]), seconds, before, after,
+                          chosen, new)
+
+
+
+def user_clip_data(data: LPNData, clips: Sequence[str | os.PathLike], *, mirror: bool = True,
+                   seconds: tuple[float, float] | None = None, joint_map=None,
+                   cache: str | os.PathLike | None = None, progress: bool = False) -> LPNData:
+    """``data`` with its new styles replaced by the user's BVH ``clips`` (one new style per file,
+    named by its stem, mirrored unless ``mirror`` is false, ``seconds`` = (start, end) of each;
+    :func:`jaxstyle.data.folders.user_clip_specs`), as ``jaxstyle sweep --clip`` does for the 2018
+    adapters. A clip of another skeleton, or too short to give a style clip (240 frames) inside
+    its training rows and some validation rows, is refused in one line naming the file."""
+    specs = user_clip_specs(clips, mirror, seconds, joint_map)
+    names, base_file = tuple(data.skeleton.names), data.base.specs[0].path
+    for spec in specs:
+        if spec.mirror:
+            continue
+        motion = datasets.load_clip(spec)
+        if tuple(motion.names) != names:
+            detail = (f"{motion.num_joints} joints" if motion.num_joints != len(names) else
+                      "joint {} is {!r} where the model's is {!r}".format(
+                          *next((i, a, b) for i, (a, b) in enumerate(zip(motion.names, names, strict=True))
+                                if a != b)))
+            raise PipelineError(f"clip {spec.path}: its skeleton has {detail}; the model was trained on "
+                                f"{len(names)} joints ({base_file}): give a clip of the model's skeleton")
+        need = datasets.min_frames(motion.fps)
+        if motion.num_frames < need:
+            raise PipelineError(f"clip {spec.path}: {motion.num_frames} frames ({motion.num_frames / motion.fps:.1f} s)"
+                                f" are shorter than the trajectory window ({need} frames, {need / motion.fps:.1f} s)")
+    new = datasets.build_lpn_dataset(specs, cache_dir=cache, progress=progress)
+    for spec in specs:
+        if spec.mirror:
+            continue
+        frames = int(np.sum(new.clip == new.specs.index(spec)))
+        if len(new.clips_of_style(spec.style, "train")) == 0 or len(new.rows_of_style(spec.style, "validation")) == 0:
+            raise PipelineError(f"clip {spec.path}: {frames} rows give no {new.clips.shape[1]}-frame style clip inside "
+                                "its training rows (80% of the clip) or no validation rows: give a longer clip "
+                                f"(about {_min_clip_seconds(new.clips.shape[1]):.0f} s or more)")
+    return LPNData(data.base, new, data.skeleton)
+
+
+def _min_clip_seconds(clip_frames: int, fps: float = 60.0) -> float:
+    """A rough length that gives a style clip in the training block: the trajectory window, the
+    clip over the 80% training share, one clip stride for its alignment."""
+    return (datasets.min_frames(fps) + clip_frames / 0.8 + clip_frames / 2) / fps
+
+
+ClosedLoopCheck = defaults.RolloutCheck  # the 2018 sweep's check thresholds, one definition for both papers
+CHECK_FIELDS = defaults.ROLLOUT_FIELDS
+DEFAULT_CHECK = ClosedLoopCheck()
+
+
+def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
+                      check: ClosedLoopCheck = DEFAULT_CHECK) -> dict[str, np.ndarray]:
+    """Drive every (new style, rate) of a fine-tuning sweep and, per new style, the model before
+    fine-tuning, in ONE batched rollout; returns ``(S, R)`` arrays named by :data:`CHECK_FIELDS`
+    and per style ``(S,)`` references ``real_contact_fraction``, ``speed_m_s``,
+    ``base_skating_m_s``, ``base_bone_error`` (see :class:`ClosedLoopCheck`; the measures and the
+    pass rule are the 2018 sweep's, :mod:`jaxstyle.output.check`)."""
+    from jaxstyle.control import loop, lpn_controller
+    from jaxstyle.control.model import rollout_batch
+    from jaxstyle.data.lpn_features import bone_points
+    from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
+    from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
+    from jaxstyle.motion.kinematics import UP_AXIS, global_positions
+    from jaxstyle.output import metrics
+    from jaxstyle.output.check import passes_check, rollout_measures
+
+    new, skeleton, raw = result.data, data.skeleton, data.new
+    upm, num_joints = estimate_units_per_meter(skeleton), skeleton.num_joints
+    num_bones, fps = len(bone_points(skeleton)[0]), float(skeleton.fps)
+    num_styles, num_rates = len(result.styles), len(result.rates)
+    frames = int(round(check.seconds * fps))
+    feet = list(FootJoints.find(skeleton).ankles) + list(FootJoints.find(skeleton).toes)
+    gen0 = model.params["style"]["generator"]
+    character = lpn_controller.StyleNetModel.create(model.params, model.config, data.base.normalisers(), skeleton)
+    states, controls, styles = [], [], []
+    ref = {k: np.zeros(num_styles) for k in ("real_contact_fraction", "speed_m_s", "base_skating_m_s",
+                                            "base_bone_error")}
+    floors = []
+    for s in range(num_styles):
+        rows = new.train_rows[s]
+        first_clip = int(raw.clip[rows].min())
+        motion = datasets.load_clip(raw.specs[first_clip])
+        real = global_positions(motion)
+        floor = floor_heights(real[:, feet, UP_AXIS])
+        floors.append(floor)
+        ref["real_contact_fraction"][s] = metrics.positions_foot_stats(
+            real, skeleton, fps, floor, units_per_meter=upm, tolerance_m=check.tolerance_m).contact_fraction
+        y = raw.outputs[rows]
+        # the first future trajectory sample (x at 0, z at FUTURE_SAMPLES) is the next frame's root
+        speed = float(np.median(np.hypot(y[:, 0], y[:, FUTURE_SAMPLES]))) * fps
+        ref["speed_m_s"][s] = speed / upm
+        clip_rows = rows[raw.clip[rows] == first_clip]
+        start = clip_rows[np.argmin(raw.frame[clip_rows])]
+        state = lpn_controller.initial_state(raw.inputs[start], raw.phases[start], num_bones)
+        control = loop.turning_path(frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
+        clips = new.clips[new.train_clips[s]]
+        for r in range(num_rates + 1):  # the last: the model before fine-tuning
+            gen = gen0 if r == num_rates else jax.tree.map(lambda v, s=s, r=r: v[s, r], result.generators)
+            styles.append(film.clip_films(gen, clips).mean(axis=0))
+            states.append(state)
+            controls.append(control)
+
+    def stack(items):
+        return jax.tree.map(lambda *a: np.stack(a), *items)
+
+    out = rollout_batch(character, np.stack(styles), stack(states), stack(controls))
+    positions = np.asarray(out.positions)[:, :, :num_joints]
+    origin = np.asarray(out.origin)
+    finite_c = np.isfinite(positions).all(axis=(1, 2, 3)) & np.isfinite(np.asarray(out.outputs)).all(axis=(1, 2))
+    measures = {k: np.full((num_styles, num_rates + 1), np.nan) for k in CHECK_FIELDS[:-1]}
+    for c in range(len(styles)):
+        s, r = divmod(c, num_rates + 1)
+        row = rollout_measures(positions[c], origin[c], bool(finite_c[c]), skeleton, fps, floors[s], upm, check,
+                               ref["speed_m_s"][s] * upm)
+        for k, v in row.items():
+            measures[k][s, r] = v
+    ref["base_skating_m_s"] = measures["skating_m_s"][:, -1]
+    ref["base_bone_error"] = measures["bone_error"][:, -1]
+    out_sr = {k: v[:, :-1] for k, v in measures.items()}
+    out_sr["passed"] = passes_check(out_sr, ref["real_contact_fraction"], ref["base_skating_m_s"], ref["speed_m_s"],
+                                    check).astype(float)
+    return {**out_sr, **ref}
+
+
+def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
+                   rates: Sequence[float] = FINETUNE_RATES, steps: int = 150, epochs: int = 100,
+                   check: ClosedLoopCheck = DEFAULT_CHECK, progress: bool = True
+                   ) -> tuple["FinetuneResult", dict[str, np.ndarray], dict[str, Path]]:
+    """New styles from the user's clips (``data.new``, :func:`user_clip_data`) the 2022 way: the
+    FiLM generator alone fine-tuned for every (clip style, rate) in one compiled sweep
+    (:func:`finetune_sweep`), every pair validated and driven closed-loop
+    (:func:`closed_loop_check`), a rate chosen per style (:func:`jaxstyle.output.check.choose_rates`), and written to
+    ``directory``: :func:`write_finetune`'s files (every generator, ``chosen_rates.json`` with the
+    check), ``generators/<style>.npz`` (the chosen generator alone, :func:`load_generator` reads it)
+    and ``clips.json`` (the clips, the rates, the base clips: enough to rebuild the new styles' rows)."""
+    result = finetune_sweep(model, data, rates=rates, steps=steps, epochs=epochs, progress=progress)
+    checked = closed_loop_check(model, result, data, check)
+    val = result.after["validation"]["mse"] + result.after["validation"]["bll"]
+    chosen, passed = choose_rates(val, checked["passed"])
+    result = dataclasses.replace(result, chosen=chosen)
+    directory = Path(directory)
+    paths = write_finetune(result, directory)
+    saved = json.loads(paths["chosen"].read_text())
+    for s, style in enumerate(result.styles):
+        saved[style]["check_passed"] = bool(passed[s])
+        saved[style]["check"] = {k: _number(checked[k][s, chosen[s]]) for k in CHECK_FIELDS}
+    paths["chosen"].write_text(json_text(saved))
+    (directory / "generators").mkdir(parents=True, exist_ok=True)
+    for style in result.styles:
+        path = directory / "generators" / f"{style}.npz"
+        gen = result.params(model, style)["style"]["generator"]
+        np.savez(path, **{jax.tree_util.keystr(k): np.asarray(v) for k, v in jax.tree_util.tree_leaves_with_path(gen)})
+        paths[f"generator {style}"] = path
+    paths["clips"] = directory / "clips.json"
+    paths["clips"].write_text(json_text({"model": model.name, "rates": list(result.rates), "steps": result.steps,
+                                         "new": [dataclasses.asdict(s) for s in data.new.specs],
+                                         "base": [dataclasses.asdict(s) for s in data.base.specs]}))
+    return result, {**checked, "chosen_passed": passed}, paths
+
+
+def load_generator(path: str | os.PathLike, like: dict) -> dict:
+    """A generator written by :func:`finetune_clips` (``generators/<style>.npz``) in the tree
+    structure of ``like`` (the model's generator), e.g. to drive the new style later."""
+    with np.load(path) as z:
+        leaves = [z[jax.tree_util.keystr(k)] for k, _ in jax.tree_util.tree_leaves_with_path(like)]
+    return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(like), leaves)
+
+
+def write_finetune(result: FinetuneResult, directory: str | os.PathLike) -> dict[str, Path]:
+    """Write ``finetuned_generators.npz`` (every generator, leading axes (new style, rate)) and
+    ``chosen_rates.json`` (per new style its chosen rate and losses) into ``directory``."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = {"generators": directory / "finetuned_generators.npz", "chosen": directory / "chosen_rates.json"}
+    leaves = jax.tree_util.tree_leaves_with_path(result.generators)
+    np.savez(paths["generators"], **{jax.tree_util.keystr(path): np.asarray(v) for path, v in leaves})
+    chosen = {}
+    for s, style in enumerate(result.styles):
+        c = int(result.chosen[s])
+        chosen[style] = {"rate": result.rates[c], "rate_index": c,
+                         **{f"{split}_{k}": _number(result.after[split][k][s, c]) for split in SPLITS
+                            for k in ("mse", "bll")}}
+    paths["chosen"].write_text(json_text(chosen))
+    return paths
+
+
+def _number(value) -> float | None:
+    return float(value) if np.isfinite(value) else None

@@ -1,0 +1,184 @@
+"""The 2022 workflow's reports: Markdown tables of models' losses, budgets and Table 2's ordering
+(:func:`losses_table`, :func:`models_table`, :func:`budget_table`, :func:`ordering_lines`), of a FiLM
+fine-tuning sweep and its closed-loop check (:func:`finetune_summary`, :func:`finetune_table`,
+:func:`check_table`), and figures (:func:`curves_figure`: validation curves of several models;
+:func:`film_figure`: the paper's Figure 11 with PCA).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from jaxstyle.mason2022.finetune import FinetuneResult
+from jaxstyle.mason2022.pipeline import BudgetRun, Model
+from jaxstyle.nn import film_generator as film
+from jaxstyle.output import viz
+
+
+def budget_table(runs: dict[str, BudgetRun], logs: dict[str, dict[str, np.ndarray]]) -> list[str]:
+    """Markdown lines: per model the epochs it got in its budget and why it stopped, its minutes,
+    the last epoch's training MSE and validation MSE, its best validation MSE, and every model's
+    validation MSE at the epoch all of them reached (a comparison at equal epochs)."""
+    common = min((len(log["epoch"]) for log in logs.values() if log), default=0)
+    lines = [f"| model | epochs | stopped | minutes | train MSE (last epoch) | val MSE (last) | best val MSE | "
+             f"val MSE @ epoch {common} |", "|---|---|---|---|---|---|---|---|"]
+    for name, run in runs.items():
+        log = logs[name]
+        lines.append(f"| {name} | {run.epochs} | {run.stopped} | {run.seconds / 60:.1f} | {log['train_mse'][-1]:.4f} | "
+                     f"{log['val_mse'][-1]:.4f} | {np.nanmin(log['val_mse']):.4f} | "
+                     f"{log['val_mse'][common - 1]:.4f} |")
+    return lines
+
+
+def ordering_lines(results: dict[str, dict[str, np.ndarray]]) -> list[str]:
+    """Lines: the models ranked by mean test MSE + BLL, and whether the paper's two claims about
+    Figure 10 hold: every FiLM model has a lower test error than every one-hot and adapter model,
+    and PFNN Resad is below LPN Resad (the CP adapter's phase dependence)."""
+    total = {n: float(np.mean(r["mse"]) + np.mean(r["bll"])) for n, r in results.items()}
+    ranked = sorted(total, key=total.get)
+    lines = ["ranked by test MSE + BLL (lowest first): " + ", ".join(f"{n} {total[n]:.4f}" for n in ranked)]
+    film_models = [n for n in total if "FiLM" in n]
+    other = [n for n in total if "FiLM" not in n]
+    if film_models and other:
+        worst_film, best_other = max(film_models, key=total.get), min(other, key=total.get)
+        holds = total[worst_film] < total[best_other]
+        verdict = "holds" if holds else "does not hold"
+        lines.append(f"paper: every FiLM model below every one-hot / adapter model: {verdict}"
+                     f" (worst FiLM {worst_film} {total[worst_film]:.4f}, best other {best_other} "
+                     f"{total[best_other]:.4f})")
+    if {"PFNN Resad", "LPN Resad"} <= set(total):
+        holds = total["PFNN Resad"] < total["LPN Resad"]
+        lines.append(f"paper: PFNN Resad below LPN Resad: {'holds' if holds else 'does not hold'} "
+                     f"({total['PFNN Resad']:.4f} vs {total['LPN Resad']:.4f})")
+    return lines
+
+
+def curves_figure(logs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *, title: str = "") -> Path:
+    """One figure of validation curves of several runs (``{model: read_log(...)}``): validation MSE
+    against epochs (left) and against cumulative training minutes (right), log scale."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    for i, (name, log) in enumerate(logs.items()):
+        if not log:
+            continue
+        style = {"color": f"C{i}", "marker": "o", "markersize": 3, "label": name,
+                 "linestyle": "-" if "FiLM" in name else "--"}
+        a.plot(log["epoch"], log["val_mse"], **style)
+        b.plot(np.cumsum(log["seconds"]) / 60.0, log["val_mse"], **style)
+    a.set_xlabel("epoch")
+    b.set_xlabel("training minutes (2-core CPU, validation included)")
+    a.set_ylabel("validation MSE (normalised outputs)")
+    for ax in (a, b):
+        ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+    a.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+
+def check_table(result: "FinetuneResult", checked: dict[str, np.ndarray]) -> list[str]:
+    """Markdown lines: per clip style and rate the validation loss (``(fails)`` where the
+    closed-loop check fails), the chosen rate and its check's figures."""
+    rates = result.rates
+    val = result.after["validation"]["mse"] + result.after["validation"]["bll"]
+    lines = ["| clip style | val rows | " + " | ".join(f"val @ {r:g}" for r in rates)
+             + " | chosen | check | bone error | feet on floor (clip) | skating m/s (before) | progress |",
+             "|---|---|" + "---|" * len(rates) + "---|---|---|---|---|---|"]
+    for s, style in enumerate(result.styles):
+        c = int(result.chosen[s])
+        cells = [f"{val[s, r]:.4f}" + ("" if checked["passed"][s, r] else " (fails)") for r in range(len(rates))]
+        lines.append(f"| {style} | {len(result.data.val_rows[s])} | " + " | ".join(cells)
+                     + f" | {rates[c]:g} | {'passed' if checked['chosen_passed'][s] else 'FAILED'} | "
+                       f"{100 * checked['bone_error'][s, c]:.1f}% | {checked['contact_fraction'][s, c]:.2f} "
+                       f"({checked['real_contact_fraction'][s]:.2f}) | {checked['skating_m_s'][s, c]:.2f} "
+                       f"({checked['base_skating_m_s'][s]:.2f}) | {checked['progress'][s, c]:.2f} |")
+    return lines
+
+
+
+def losses_table(styles: Sequence[str], losses: dict[str, np.ndarray]) -> list[str]:
+    """Markdown lines: one model's test MSE and bone-length loss per style."""
+    lines = ["| style | test MSE (normalised) | test bone-length loss (cm) |", "|---|---|---|"]
+    return lines + [f"| {style} | {losses['mse'][s]:.4f} | {100 * losses['bll'][s]:.2f} |"
+                    for s, style in enumerate(styles)]
+
+
+def models_table(styles: Sequence[str], results: dict[str, dict[str, np.ndarray]]) -> list[str]:
+    """Markdown lines: per model its mean test MSE and bone-length loss, and both per style."""
+    lines = ["| model | test MSE (normalised) | test BLL (m) | " + " | ".join(styles) + " |",
+             "|---|---|---|" + "---|" * len(styles)]
+    for name, r in results.items():
+        per = " | ".join(f"{m:.3f} / {b * 100:.2f} cm" for m, b in zip(r["mse"], r["bll"], strict=True))
+        lines.append(f"| {name} | {np.mean(r['mse']):.4f} | {np.mean(r['bll']):.5f} | {per} |")
+    return lines
+
+
+def finetune_summary(result: FinetuneResult) -> str:
+    """One line: what was fine-tuned, and how long it took."""
+    return (f"fine-tuned the FiLM generator alone: {len(result.styles)} new styles x {len(result.rates)} rates, "
+            f"{result.steps} steps each, one compiled sweep: {result.seconds:.0f} s")
+
+
+def finetune_table(result: FinetuneResult, *, checked: bool = False) -> list[str]:
+    """Markdown lines: per new style its test MSE before and after fine-tuning at each rate, the
+    chosen rate and the test bone-length loss there; then the validation loss that chose it
+    (``checked``: among the rates that passed the closed-loop check, :func:`finetune_clips`)."""
+    rates, s_r = result.rates, range(len(result.rates))
+    test, val = result.after["test"], result.after["validation"]
+    lines = ["| new style | test MSE before | " + " | ".join(f"after @ {r:g}" for r in rates)
+             + " | chosen rate | test BLL before / after (cm) |", "|---|---|" + "---|" * len(rates) + "---|---|"]
+    for s, style in enumerate(result.styles):
+        c = int(result.chosen[s])
+        lines.append(f"| {style} | {result.before['test']['mse'][s]:.4f} | "
+                     + " | ".join(f"{test['mse'][s, r]:.4f}" for r in s_r)
+                     + f" | {rates[c]:g} | {100 * result.before['test']['bll'][s]:.2f} / "
+                       f"{100 * test['bll'][s, c]:.2f} |")
+    lines += ["", "| new style | validation MSE + BLL before | " + " | ".join(f"@ {r:g}" for r in rates) + " |",
+              "|---|---|" + "---|" * len(rates)]
+    for s, style in enumerate(result.styles):
+        before = result.before["validation"]["mse"][s] + result.before["validation"]["bll"][s]
+        cells = [f"{val['mse'][s, r] + val['bll'][s, r]:.4f}" + (" (chosen)" if r == result.chosen[s] else "")
+                 for r in s_r]
+        lines.append(f"| {style} | {before:.4f} | " + " | ".join(cells) + " |")
+    lines.append("\n(the validation rows choose the rate among the rates that pass the closed-loop check, or among all "
+                 "when none passes)" if checked else
+                 "\n(the validation rows choose the rate; a style without validation rows keeps the first rate)")
+    return lines
+
+
+def film_figure(model: Model, result: FinetuneResult, path: str | os.PathLike, *, clips_per_style: int = 50) -> Path:
+    """The paper's Figure 11 with PCA: FiLM parameters of up to ``clips_per_style`` training clips of
+    every style before and after fine-tuning (new styles at their chosen rates), written to ``path``."""
+    gen0 = model.params["style"]["generator"]
+    before, after = {}, {}
+    for s, style in enumerate(model.data.styles):
+        c = model.data.train_clips[s][:clips_per_style]
+        before[style] = after[style] = film.clip_films(gen0, model.data.clips[c])
+    for s, style in enumerate(result.styles):
+        c = result.data.train_clips[s][:clips_per_style]
+        before[style] = film.clip_films(gen0, result.data.clips[c])
+        after[style] = film.clip_films(result.params(model, style)["style"]["generator"], result.data.clips[c])
+    fig = viz.plot_film_projection({"before fine-tuning": before, "after fine-tuning": after},
+                                   new_styles=result.styles, title="FiLM parameters of style clips (PCA)")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    import matplotlib.pyplot as plt  # after viz chose the backend
+
+    plt.close(fig)
+    return path
