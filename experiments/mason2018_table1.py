@@ -3,7 +3,7 @@
     python experiments/mason2018_table1.py [--epochs 100] [--repeats 200]
 
 For each adapter kind, on the 234 -> 512 -> 512 -> 400 PFNN
-(:func:`jaxstyle.mason2018.pipeline.adapter_cost`):
+(:func:`jaxstyle.mason2018.bench.adapter_cost`):
 
 * memory of one new adapter in MB (2^20 bytes, float32): control points only / discretised into
   the runtime's 50 phase bins, measured from the arrays and checked against the formulas;
@@ -28,7 +28,7 @@ import jax
 
 import jaxstyle as js
 from jaxstyle.data import datasets
-from jaxstyle.mason2018 import pipeline
+from jaxstyle.mason2018 import bench as bench2018
 from jaxstyle.mason2018.train import data_from_dataset
 from jaxstyle.nn import pfnn
 
@@ -50,7 +50,7 @@ def main() -> None:
     sizes = ", ".join(f"{data.styles[s]} {len(data.train_rows[s])}" for s in styles)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, jax {jax.__version__} "
           f"on {jax.devices()[0].platform}; styles with at least one batch of training rows: {sizes}\n")
-    rows = [pipeline.adapter_cost(kind, data, styles, epochs=args.epochs, repeats=args.repeats)
+    rows = [bench2018.adapter_cost(kind, data, styles, epochs=args.epochs, repeats=args.repeats)
             for kind in pfnn.ADAPTER_KINDS]
     print("| method | memory MB (ours) | memory MB (paper) | training s (ours) | training s (paper) "
           "| runtime s (ours) | runtime s (paper) |")

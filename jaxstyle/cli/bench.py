@@ -1,5 +1,5 @@
 """``jaxstyle bench``: the few-shot sweep against a loop of single runs, and the network's speed
-(:func:`jaxstyle.mason2018.pipeline.bench`)."""
+(:func:`jaxstyle.mason2018.bench.bench`)."""
 
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ def add_arguments(p) -> None:
 def run(args, run: Run) -> None:
     import jax
 
+    from jaxstyle.mason2018 import bench as bench2018
     from jaxstyle.mason2018 import pipeline
     from jaxstyle.nn import pfnn
 
@@ -40,7 +41,7 @@ def run(args, run: Run) -> None:
         params, what = pfnn.init_pfnn(jax.random.PRNGKey(0), model), "a random network"
     run.say(f"bench on {machine()}: {what}, {model.input_size} -> {model.hidden_size} -> {model.output_size}, "
             f"CP rank {model.rank}")
-    b = pipeline.bench(params, model, sets=args.sets, frames=args.frames, epochs=args.sweep_epochs, rates=args.rates)
+    b = bench2018.bench(params, model, sets=args.sets, frames=args.frames, epochs=args.sweep_epochs, rates=args.rates)
     sweep, loop = b.seconds["sweep"], b.seconds["loop"]
     run.say(f"few-shot fine-tuning, {b.pairs} pairs x {b.steps} steps of batch {b.batch_size}: "
             f"one jit(vmap) sweep {sweep:.2f} s, loop of single runs {loop:.2f} s, "
