@@ -37,7 +37,7 @@ from jaxstyle.nn import film_generator, pfnn, style_models
 from jaxstyle.play import learn, models, session
 from jaxstyle.play.frame import Steering, control_row, control_rows
 from jaxstyle.play.models import PlayError
-from jaxstyle.play.server import bone_transforms, ground_point
+from jaxstyle.play.scene import bone_transforms, ground_point
 from tests import test_synthesis_lpn
 
 STYLES = ("Neutral", "Crouched")
