@@ -8,7 +8,7 @@ scale, LPN-FiLM training throughput and many live characters. Writes ``gpu.json`
 Sections (``--sections``, default all; each is timed after its own compile, which is reported
 apart, and a failing section is recorded with its error while the others run):
 
-* ``sweep``: :func:`jaxstyle.mason2018.fewshot.finetune_sweep` on the paper-size 2018 network
+* ``sweep``: :func:`jaxstyle.mason2018.fewshot.adapter_sweep` on the paper-size 2018 network
   (234 -> 512 -> 512 -> 400, CP adapters of rank 30), 57 styles (100STYLE's few-shot half) x 8
   dropout rates in one program, 600 synthetic rows per style (+-5%), 100 epochs of batch 32, in
   the paper mode (dropout on every layer, float32) and the fast mode (dropout on the adapter path
@@ -92,10 +92,10 @@ def sweep_rows(size: dict, small: bool) -> list[dict]:
         batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
         pairs, steps = styles * len(config.rates), int(batches.shape[1])
         sweep_bench._compile_seconds[0] = 0.0
-        first = _timed(lambda config=config, batches=batches, mask=mask: fewshot.finetune_sweep(
+        first = _timed(lambda config=config, batches=batches, mask=mask: fewshot.adapter_sweep(
             params, x, y, phase, batches, mask, config))
         compile_s = sweep_bench._compile_seconds[0]
-        seconds = _timed(lambda config=config, batches=batches, mask=mask: fewshot.finetune_sweep(
+        seconds = _timed(lambda config=config, batches=batches, mask=mask: fewshot.adapter_sweep(
             params, x, y, phase, batches, mask, config))
         one = lambda config=config, batches=batches, mask=mask: fewshot.finetune_one(  # noqa: E731
             params, x, y, phase, batches[0], mask[0], config.rates[0], scan.pair_key(config.seed, 0, 0), config)[0]

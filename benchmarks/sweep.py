@@ -131,9 +131,9 @@ def measure(mode: str, model, x, y, phase, rows, rates, epochs) -> dict:
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), model)
     pairs = len(rows) * len(rates)
     _compile_seconds[0] = 0.0
-    timed(lambda: fewshot.finetune_sweep(params, x, y, phase, batches, mask, config))
+    timed(lambda: fewshot.adapter_sweep(params, x, y, phase, batches, mask, config))
     compile_s = _compile_seconds[0]
-    sweep = timed(lambda: fewshot.finetune_sweep(params, x, y, phase, batches, mask, config))
+    sweep = timed(lambda: fewshot.adapter_sweep(params, x, y, phase, batches, mask, config))
 
     def loop():
         out = []

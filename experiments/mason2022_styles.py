@@ -128,7 +128,7 @@ def main() -> None:
         steps = int(np.clip(0.8 * share / (SWEEP_STEP_COST * pairs * step_s), 1, args.finetune_steps))
         print(f"fine-tuning: {share / 60:.1f} min left, {step_s:.2f} s per LPN-FiLM training step -> {steps} steps "
               f"per (style, rate)", flush=True)
-        result = finetune.finetune_sweep(model, data, rates=args.rates, steps=steps, progress=show)
+        result = finetune.generator_sweep(model, data, rates=args.rates, steps=steps, progress=show)
         lines += ["", report.finetune_summary(result), "", *report.finetune_table(result)]
         files += [*finetune.write_finetune(result, args.out).values(),
                   report.film_figure(model, result, args.out / "figure11.png")]

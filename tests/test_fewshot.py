@@ -53,7 +53,7 @@ def test_vmapped_sweep_equals_single_runs():
     config = fewshot.SweepConfig(model=SMALL, epochs=4, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.3, 0.6))
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
     batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
-    adapters, losses = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
+    adapters, losses = fewshot.adapter_sweep(params, x, y, phase, batches, mask, config)
     assert losses.shape == (3, 3, batches.shape[1])
     for s in range(3):
         for r in range(len(config.rates)):
@@ -69,7 +69,7 @@ def test_sweep_lowers_the_training_loss_and_leaves_the_base_alone():
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
     before = jax.tree.map(np.asarray, params)
     batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
-    _, losses = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
+    _, losses = fewshot.adapter_sweep(params, x, y, phase, batches, mask, config)
     first, last = np.asarray(losses[:, 0, :2]).mean(), np.nanmean(np.asarray(losses[0, 0, -5:]))
     assert last < 0.8 * first
     for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(params), strict=True):
@@ -100,7 +100,7 @@ def test_adapter_dropout_only_mode_matches_its_definition():
     np.testing.assert_allclose(no_drop, full, rtol=1e-5)
 
     batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
-    adapters, _ = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
+    adapters, _ = fewshot.adapter_sweep(params, x, y, phase, batches, mask, config)
     _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, 1, 1)
 
 
@@ -124,8 +124,8 @@ def test_sharded_grid_matches_one_device():
         config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.0, 0.5))
         params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
         b, m = scan.sweep_batches(rows, config.epochs, config.batch_size)
-        one, _ = fewshot.finetune_sweep(params, x, y, phase, b, m, config)
-        two, _ = fewshot.finetune_sweep(params, x, y, phase, b, m, config, shard=True)  # 3 styles padded to 4
+        one, _ = fewshot.adapter_sweep(params, x, y, phase, b, m, config)
+        two, _ = fewshot.adapter_sweep(params, x, y, phase, b, m, config, shard=True)  # 3 styles padded to 4
         for a, c in zip(jax.tree.leaves(one), jax.tree.leaves(two)):
             assert a.shape == c.shape
             np.testing.assert_allclose(a, c, rtol=1e-4, atol=1e-6)
@@ -163,7 +163,7 @@ def test_bfloat16_sweep_equals_its_single_runs():
                                  matmul_dtype="bfloat16")
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
     batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
-    adapters, _ = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
+    adapters, _ = fewshot.adapter_sweep(params, x, y, phase, batches, mask, config)
     _assert_pair_equals_single_run(params, x, y, phase, batches, mask, config, adapters, 2, 1)
     with pytest.raises(ValueError, match="matmul_dtype"):
         fewshot.SweepConfig(matmul_dtype="float16")
@@ -177,7 +177,7 @@ def test_sweep_with_full_and_diagonal_adapters_equals_single_runs(kind):
     config = fewshot.SweepConfig(model=model, epochs=2, batch_size=16, learning_rate=3e-3, rates=(0.2, 0.6))
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), model)
     batches, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
-    adapters, losses = fewshot.finetune_sweep(params, x, y, phase, batches, mask, config)
+    adapters, losses = fewshot.adapter_sweep(params, x, y, phase, batches, mask, config)
     assert pfnn.adapter_kind(jax.tree.map(lambda v: v[0, 0], adapters)) == kind
     assert np.isfinite(np.asarray(losses[:, :, 0])).all()
     for s, r in ((0, 1), (1, 0)):

@@ -41,7 +41,7 @@ def test_build_train_finetune_select_report(tiny, tmp_path):
     assert config.input_size == data.base.inputs.shape[1] and config.generator.film_size == 32
     model = pipeline.train_model(data, config, tmp_path / "lpn", epochs=1, progress=False)
     assert report.losses_table(model.data.styles, pipeline.model_losses(model))[2].startswith("| Neutral | ")
-    result = finetune.finetune_sweep(model, data, rates=(0.1, 0.5), steps=2, progress=False)
+    result = finetune.generator_sweep(model, data, rates=(0.1, 0.5), steps=2, progress=False)
     assert result.styles == ("Limping",) and result.rates == (0.1, 0.5) and result.steps == 2
     assert result.after["test"]["mse"].shape == (1, 2) and np.isfinite(result.after["test"]["mse"]).all()
     assert result.chosen_rate("Limping") in (0.1, 0.5)

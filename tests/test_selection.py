@@ -42,8 +42,8 @@ def test_adding_a_style_leaves_the_others_unchanged():
     b2, m2 = scan.sweep_batches(two, config.epochs, config.batch_size)
     b3, m3 = scan.sweep_batches(three, config.epochs, config.batch_size)
     assert b3.shape[1] > b2.shape[1]
-    before, _ = fewshot.finetune_sweep(params, x, y, phase, b2, m2, config)
-    after, _ = fewshot.finetune_sweep(params, x, y, phase, b3, m3, config)
+    before, _ = fewshot.adapter_sweep(params, x, y, phase, b2, m2, config)
+    after, _ = fewshot.adapter_sweep(params, x, y, phase, b3, m3, config)
     for s in range(2):
         for r in range(2):
             a, b = (jax.tree.map(lambda v, s=s, r=r: v[s, r], t) for t in (before, after))
@@ -57,8 +57,8 @@ def test_chunked_sweep_equals_one_call():
     config = fewshot.SweepConfig(model=SMALL, epochs=3, batch_size=16, learning_rate=3e-3, rates=(0.2, 0.5))
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
     b, m = scan.sweep_batches(rows, config.epochs, config.batch_size)
-    whole, lw = fewshot.finetune_sweep(params, x, y, phase, b, m, config)
-    chunked, lc = fewshot.finetune_sweep(params, x, y, phase, b, m, config, chunk_steps=5)  # 12 steps: 5 + 5 + 2
+    whole, lw = fewshot.adapter_sweep(params, x, y, phase, b, m, config)
+    chunked, lc = fewshot.adapter_sweep(params, x, y, phase, b, m, config, chunk_steps=5)  # 12 steps: 5 + 5 + 2
     for p, q in zip(jax.tree.leaves(whole), jax.tree.leaves(chunked), strict=True):
         np.testing.assert_allclose(np.asarray(q), np.asarray(p), rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(np.asarray(lc), np.asarray(lw), rtol=1e-5)

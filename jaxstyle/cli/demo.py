@@ -192,7 +192,7 @@ def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
     files = [run.dir / "lpn"]
     sets = []
     if config.modulation == "film" and args.finetune_steps > 0 and data.new is not None:
-        result = finetune.finetune_sweep(model, data, rates=DEMO_FINETUNE_RATES, steps=args.finetune_steps,
+        result = finetune.generator_sweep(model, data, rates=DEMO_FINETUNE_RATES, steps=args.finetune_steps,
                                          progress=progress(args))
         for line in ["", report.finetune_summary(result), *report.finetune_table(result)]:
             run.say(line)

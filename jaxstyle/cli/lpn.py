@@ -142,7 +142,7 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
         run.say("chosen rates: " + ", ".join(f"{s} {result.chosen_rate(s):g}" for s in result.styles))
         files += list(paths.values())
     elif args.finetune_steps > 0:
-        result = finetune.finetune_sweep(model, data, rates=args.rates, steps=args.finetune_steps,
+        result = finetune.generator_sweep(model, data, rates=args.rates, steps=args.finetune_steps,
                                          progress=progress(args))
         lines = report.finetune_table(result)
         for line in ["", report.finetune_summary(result), *lines]:

@@ -49,7 +49,7 @@ def bench(params: dict, model: pfnn.PFNNConfig, *, sets: int = 4, frames: int = 
     plan, mask = scan.sweep_batches(rows, config.epochs, config.batch_size)
 
     def sweep():
-        return fewshot.finetune_sweep(params, x, y, phase, plan, mask, config)
+        return fewshot.adapter_sweep(params, x, y, phase, plan, mask, config)
 
     def loop():
         return [fewshot.finetune_one(params, x, y, phase, plan[s], mask[s], rate, scan.pair_key(config.seed, s, r),

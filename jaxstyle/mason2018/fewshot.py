@@ -1,7 +1,7 @@
 """Few-shot style learning as one compiled program (Mason et al. 2018, section 7).
 
 The base PFNN is frozen; for every (style, dropout rate) pair a fresh adapter is trained on that
-style's few hundred frames. :func:`finetune_sweep` runs ALL pairs in one ``jit`` of a ``vmap``
+style's few hundred frames. :func:`adapter_sweep` runs ALL pairs in one ``jit`` of a ``vmap``
 over styles of a ``vmap`` over rates, each a ``lax.scan`` over steps; base parameters are
 broadcast (``in_axes=None``, never copied per pair) and gradients are taken with respect to the
 adapter only. The program is the shared grid driver :func:`jaxstyle.train.scan.grid_sweep` with
@@ -149,7 +149,7 @@ def finetune_one(params: dict, x, y, phase, batches_TxB, mask_T, rate: float, ke
     return adapter, losses
 
 
-def finetune_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: SweepConfig, *,
+def adapter_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: SweepConfig, *,
                    shard: bool = False, chunk_steps: int | None = None, progress: bool = False
                    ) -> tuple[dict, jax.Array]:
     """Adapters ``(S, R, ...)`` and per-step losses ``(S, R, T)`` for every style x rate, in one

@@ -7,7 +7,7 @@ The paper chose each new style's dropout rate by eye. jaxstyle chooses it automa
    the last training rows and the first validation rows overlap less; a clip's mirrored copy
    holds out the same frames.
 2. **Sweep**: every (style, rate) pair is fine-tuned in one compiled program
-   (:func:`jaxstyle.mason2018.fewshot.finetune_sweep`).
+   (:func:`jaxstyle.mason2018.fewshot.adapter_sweep`).
 3. **Validation loss** per pair (:func:`validation_grid`): MSE of the held-out rows on normalised
    outputs, dropout off.
 4. **Closed-loop check** per pair (:func:`check_rollouts`): the character walks a turning path
@@ -240,7 +240,7 @@ def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], data
       styles: a subset of the dataset's styles; ``check``: :class:`RolloutCheck` thresholds;
       holdout: keyword arguments of :func:`holdout_rows`; ``chunk_steps``: steps per compiled
         call between progress updates; ``shard``: spread the styles over all devices
-        (:func:`jaxstyle.mason2018.fewshot.finetune_sweep`); ``progress``: tqdm bars.
+        (:func:`jaxstyle.mason2018.fewshot.adapter_sweep`); ``progress``: tqdm bars.
     """
     config = config or fewshot.SweepConfig()
     check = check or RolloutCheck()
@@ -251,7 +251,7 @@ def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], data
     data = fewshot_data(dataset, normalisers, styles, fps=fps, **(holdout or {}))
     batches, mask = scan.sweep_batches(data.train_rows, config.epochs, config.batch_size, seed=config.seed)
     t0 = time.perf_counter()
-    adapters, losses = fewshot.finetune_sweep(params, jnp.asarray(data.x), jnp.asarray(data.y),
+    adapters, losses = fewshot.adapter_sweep(params, jnp.asarray(data.x), jnp.asarray(data.y),
                                               jnp.asarray(data.phase), batches, mask, config,
                                               chunk_steps=chunk_steps, shard=shard, progress=progress)
     jax.block_until_ready(adapters)

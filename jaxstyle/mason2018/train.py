@@ -236,7 +236,7 @@ def finetune_adapter(params: dict, adapter: dict, data: TrainData, style: int, c
 
     ``config.epochs`` passes over the rows in shuffled batches of ``config.batch_size``, all inside
     one jitted ``lax.scan`` (compiled once per shape; the same program as one pair of
-    :func:`jaxstyle.mason2018.fewshot.finetune_sweep`); gradients are taken with respect to the adapter alone.
+    :func:`jaxstyle.mason2018.fewshot.adapter_sweep`); gradients are taken with respect to the adapter alone.
     """
     rows = np.asarray(data.train_rows[style])
     per_epoch = max(len(rows) // config.batch_size, 1)

@@ -1,6 +1,6 @@
 """New styles for a trained 2022 model (Mason, Starke & Komura 2022 section 5): its FiLM generator
 alone fine-tuned on a new style's clips for every (new style, dropout rate) pair in one compiled
-program (:func:`finetune_sweep`), every pair validated and driven closed-loop with the model's
+program (:func:`generator_sweep`), every pair validated and driven closed-loop with the model's
 :class:`jaxstyle.control.lpn_controller.StyleNetModel` (:func:`closed_loop_check`; the measures,
 pass rule and rate choice are the 2018 sweep's, :mod:`jaxstyle.output.check`), the user's own clips
 as new styles (:func:`user_clip_data`, :func:`finetune_clips`), and the files written
@@ -60,7 +60,7 @@ class FinetuneResult:
 SPLITS = ("validation", "test")
 
 
-def finetune_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FINETUNE_RATES, steps: int = 150,
+def generator_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FINETUNE_RATES, steps: int = 150,
                    epochs: int = 100, chunk_steps: int = 10, progress: bool = True) -> FinetuneResult:
     """Fine-tune ``model``'s FiLM generator on every new style of ``data`` at every dropout rate,
     at most ``steps`` steps each (over at most ``epochs`` epochs), in one compiled sweep
@@ -223,12 +223,12 @@ def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
                    ) -> tuple["FinetuneResult", dict[str, np.ndarray], dict[str, Path]]:
     """New styles from the user's clips (``data.new``, :func:`user_clip_data`) the 2022 way: the
     FiLM generator alone fine-tuned for every (clip style, rate) in one compiled sweep
-    (:func:`finetune_sweep`), every pair validated and driven closed-loop
+    (:func:`generator_sweep`), every pair validated and driven closed-loop
     (:func:`closed_loop_check`), a rate chosen per style (:func:`jaxstyle.output.check.choose_rates`), and written to
     ``directory``: :func:`write_finetune`'s files (every generator, ``chosen_rates.json`` with the
     check), ``generators/<style>.npz`` (the chosen generator alone, :func:`load_generator` reads it)
     and ``clips.json`` (the clips, the rates, the base clips: enough to rebuild the new styles' rows)."""
-    result = finetune_sweep(model, data, rates=rates, steps=steps, epochs=epochs, progress=progress)
+    result = generator_sweep(model, data, rates=rates, steps=steps, epochs=epochs, progress=progress)
     checked = closed_loop_check(model, result, data, check)
     val = result.after["validation"]["mse"] + result.after["validation"]["bll"]
     chosen, passed = choose_rates(val, checked["passed"])
