@@ -24,6 +24,7 @@ are in :mod:`jaxstyle.mason2018.selection`.
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -149,9 +150,16 @@ def finetune_one(params: dict, x, y, phase, batches_TxB, mask_T, rate: float, ke
     return adapter, losses
 
 
+class AdapterSweep(NamedTuple):
+    """The fine-tuned residual ``adapters`` (leading axes ``(S, R)``: few-shot set, dropout rate)
+    and the per-step training ``losses`` ``(S, R, T)`` of :func:`adapter_sweep`."""
+
+    adapters: dict
+    losses: jax.Array
+
+
 def adapter_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: SweepConfig, *,
-                   shard: bool = False, chunk_steps: int | None = None, progress: bool = False
-                   ) -> tuple[dict, jax.Array]:
+                  shard: bool = False, chunk_steps: int | None = None, progress: bool = False) -> AdapterSweep:
     """Adapters ``(S, R, ...)`` and per-step losses ``(S, R, T)`` for every style x rate, in one
     compiled program. ``x, y, phase`` hold all styles' normalised rows (with the base
     statistics); ``batches``/``mask`` come from :func:`sweep_batches`.
@@ -170,8 +178,8 @@ def adapter_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: Sw
     keys = jax.vmap(jax.vmap(lambda s, r: pair_key(config.seed, s, r), in_axes=(None, 0)), in_axes=(0, None))(
         jnp.arange(num_styles), jnp.arange(num_rates))
     adapters, step_keys = jax.vmap(jax.vmap(lambda k: _init_pair(config, k, num_steps)))(keys)
-    return scan.grid_sweep(_loss_of(config), adapters, frozen_inputs(params, x, y, phase), batches_SxTxB, mask_SxT,
-                           step_keys, jnp.asarray(config.rates, jnp.float32), learning_rate=config.learning_rate,
-                           hparams={"lambda_s": jnp.float32(config.lambda_s)}, chunk_steps=chunk_steps, shard=shard,
-                           progress=progress,
-                           desc=f"sweep {num_styles} styles x {num_rates} rates")
+    return AdapterSweep(*scan.grid_sweep(
+        _loss_of(config), adapters, frozen_inputs(params, x, y, phase), batches_SxTxB, mask_SxT, step_keys,
+        jnp.asarray(config.rates, jnp.float32), learning_rate=config.learning_rate,
+        hparams={"lambda_s": jnp.float32(config.lambda_s)}, chunk_steps=chunk_steps, shard=shard, progress=progress,
+        desc=f"sweep {num_styles} styles x {num_rates} rates"))

@@ -281,11 +281,36 @@ def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None =
 
 # --- few-shot sweep -----------------------------------------------------------------------------
 
+class SweepRun(NamedTuple):
+    """What :func:`run_sweep` returns: the sweep's ``result`` (every (set, rate) pair's adapter,
+    losses, check and the chosen rate), the ``files`` written (none with ``write=False``) and the
+    few-shot sets' rows ``shots``."""
+
+    result: selection.SweepResult
+    files: dict[str, Path]
+    shots: datasets.Dataset
+
+
+class LoadedSweep(NamedTuple):
+    """A sweep reloaded by :func:`load_sweep`: the ``chosen`` rates (``chosen_rates.json``) and the
+    few-shot sets' rows ``shots``."""
+
+    chosen: dict
+    shots: datasets.Dataset
+
+
+class Synthesized(NamedTuple):
+    """:func:`synthesize`'s ``result`` (rows, files, timing) and the ``characters`` it drove."""
+
+    result: SynthesisResult
+    characters: list[Character]
+
+
 def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLike, *,
               rates: Sequence[float] = DEFAULT_RATES, epochs: int = 100, adapter_dropout_only: bool = False,
               matmul_dtype: str = "float32", skeleton: Motion | None = None, cache: str | os.PathLike | None = None,
               progress: bool = True, shard: bool | None = None, write: bool = True, replace: bool = False
-              ) -> tuple[selection.SweepResult, dict[str, Path], datasets.Dataset]:
+              ) -> SweepRun:
     """Fine-tune a new adapter per (few-shot set of ``specs``, rate) on the frozen base in one compiled
     sweep, validate and check them closed-loop (on ``skeleton``, default the base's), choose a rate
     per set, and write the report to ``directory`` with ``sweep.json`` (the sets' clips). Returns the
@@ -316,7 +341,7 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
     result = selection.fewshot_sweep(base.params, base.normalisers, shots, skeleton or base.skeleton, config,
                                      progress=progress, shard=shard)
     if not write:
-        return result, {}, shots
+        return SweepRun(result, {}, shots)
     path = Path(directory) / "sweep.json"
     kept = []
     if not replace and path.is_file() and (Path(directory) / "chosen_rates.json").is_file():
@@ -330,7 +355,7 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
     path.with_name("sweep.json.tmp").write_text(json_text(meta))
     os.replace(path.with_name("sweep.json.tmp"), path)
     paths["sweep"] = path
-    return result, paths, shots
+    return SweepRun(result, paths, shots)
 
 
 def _check_joint_order(specs: Sequence[ClipSpec], base: Base) -> None:
@@ -382,7 +407,7 @@ def check_table(result: selection.SweepResult) -> list[str]:
 
 
 def load_sweep(directory: str | os.PathLike, base: Base, *, cache: str | os.PathLike | None = None
-               ) -> tuple[dict, datasets.Dataset]:
+               ) -> LoadedSweep:
     """``(chosen rates, few-shot dataset)`` of a sweep written by :func:`run_sweep`."""
     directory = Path(directory)
     for name in ("sweep.json", "chosen_rates.json"):
@@ -397,7 +422,7 @@ def load_sweep(directory: str | os.PathLike, base: Base, *, cache: str | os.Path
     shots = build(specs, cache)
     if base.settings.contacts:
         shots = with_contacts(shots, base.dataset)
-    return chosen, shots
+    return LoadedSweep(chosen, shots)
 
 
 def _portable_spec(spec: ClipSpec, directory) -> dict:
@@ -452,7 +477,7 @@ def synthesize(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
                chosen: dict | None, directory: str | os.PathLike, *, base_styles: Sequence[str] = (),
                fewshot_sets: Sequence[str] = (), blend: bool = False, paths: Sequence[str] = ("circle",),
                seconds: float = 8.0, speed: float | None = None, foot_lock: bool = True, mp4: bool = False,
-               every: int = 2, progress: bool = True) -> tuple[SynthesisResult, list[Character]]:
+               every: int = 2, progress: bool = True) -> Synthesized:
     """Base styles and few-shot sets (:func:`characters`) along ``paths`` in one batched rollout,
     written to ``directory`` (:func:`jaxstyle.output.synthesis.synthesize`: GIFs, BVH files, a
     contact sheet, quality.csv)."""
@@ -461,4 +486,4 @@ def synthesize(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
     result = synthesis.synthesize(base.character_model(), chars, base.skeleton, Path(directory),
                                   path_names=list(paths), seconds=seconds, speed=speed, foot_lock=foot_lock, mp4=mp4,
                                   every=every, contact_sheet=True, progress=progress)
-    return result, chars
+    return Synthesized(result, chars)

@@ -45,7 +45,7 @@ import shutil
 import time
 import warnings
 from pathlib import Path
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -144,9 +144,18 @@ def _rollout_rates(model: PFNNModel, adapters_R, state, controls):
     return jax.vmap(lambda a: rollout(model, a, state, controls))(adapters_R)
 
 
+class RolloutChecks(NamedTuple):
+    """:func:`check_rollouts`' figures: per (set, rate) pair the ``measures`` ``(S, R)`` named by
+    :data:`ROLLOUT_FIELDS`, and per set the ``references`` ``(S,)`` (the real training rows' and
+    the base's on the same path)."""
+
+    measures: dict[str, np.ndarray]
+    references: dict[str, np.ndarray]
+
+
 def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normaliser, Normaliser], dataset: Dataset,
                    data: TrainData, skeleton: Motion, *, fps: float = 60.0, check: RolloutCheck | None = None,
-                   progress: bool = False) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+                   progress: bool = False) -> RolloutChecks:
     """Closed-loop rollouts of every pair and their measures: ``(S, R)`` arrays named by
     :data:`ROLLOUT_FIELDS`, and per-style reference figures: of the real training rows
     (``contact_fraction``, ``skating_m_s``, ``speed_m_s``) and of the base without an adapter on
@@ -192,7 +201,7 @@ def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normalis
                 out[k][s, r] = v
     out["passed"] = passes_check(out, ref["contact_fraction"], ref["base_skating_m_s"], ref["speed_m_s"],
                                  check).astype(float)
-    return out, ref
+    return RolloutChecks(out, ref)
 
 
 # --- the whole pipeline and its report ------------------------------------------------------------

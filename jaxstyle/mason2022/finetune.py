@@ -14,7 +14,7 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import jax
 import numpy as np
@@ -217,10 +217,19 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     return {**out_sr, **ref}
 
 
+class FinetunedClips(NamedTuple):
+    """:func:`finetune_clips`' sweep ``result``, the closed-loop ``checked`` figures of every pair
+    (:func:`closed_loop_check`, with ``chosen_passed`` per style) and the ``files`` written."""
+
+    result: FinetuneResult
+    checked: dict[str, np.ndarray]
+    files: dict[str, Path]
+
+
 def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
                    rates: Sequence[float] = FINETUNE_RATES, steps: int = 150, epochs: int = 100,
                    check: ClosedLoopCheck = DEFAULT_CHECK, progress: bool = True
-                   ) -> tuple["FinetuneResult", dict[str, np.ndarray], dict[str, Path]]:
+                   ) -> FinetunedClips:
     """New styles from the user's clips (``data.new``, :func:`user_clip_data`) the 2022 way: the
     FiLM generator alone fine-tuned for every (clip style, rate) in one compiled sweep
     (:func:`generator_sweep`), every pair validated and driven closed-loop
@@ -250,7 +259,7 @@ def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
     paths["clips"].write_text(json_text({"model": model.name, "rates": list(result.rates), "steps": result.steps,
                                          "new": [dataclasses.asdict(s) for s in data.new.specs],
                                          "base": [dataclasses.asdict(s) for s in data.base.specs]}))
-    return result, {**checked, "chosen_passed": passed}, paths
+    return FinetunedClips(result, {**checked, "chosen_passed": passed}, paths)
 
 
 def load_generator(path: str | os.PathLike, like: dict) -> dict:

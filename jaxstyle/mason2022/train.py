@@ -439,9 +439,17 @@ class GeneratorLoss:
                           hparams["weight"])[0]
 
 
+class FilmSweep(NamedTuple):
+    """The fine-tuned FiLM ``generators`` (leading axes ``(S, R)``: new style, dropout rate) and the
+    per-step training ``losses`` ``(S, R, T)`` of :func:`finetune_film_sweep`."""
+
+    generators: dict
+    losses: np.ndarray
+
+
 def finetune_film_sweep(params: dict, config: StyleModelConfig, data: StyleData,
                         finetune: FiLMFinetuneConfig = FiLMFinetuneConfig(), *, chunk_steps: int | None = None,
-                        progress: bool = False, shard: bool = False) -> tuple[dict, np.ndarray]:
+                        progress: bool = False, shard: bool = False) -> FilmSweep:
     """Fine-tune the FiLM generator on every style of ``data`` (new styles, normalised with the
     base statistics) at every rate of ``finetune.rates``, the synthesis network and gating frozen
     (broadcast to all pairs; gradients for the generator only). Returns generators stacked
@@ -466,7 +474,7 @@ def finetune_film_sweep(params: dict, config: StyleModelConfig, data: StyleData,
         jnp.asarray(finetune.rates, jnp.float32), learning_rate=finetune.learning_rate,
         hparams={"weight": jnp.float32(finetune.bone_loss_weight)}, chunk_steps=chunk_steps, shard=shard,
         progress=progress, desc=f"FiLM fine-tuning {num_styles} styles x {num_rates} rates")
-    return gens, np.asarray(per_step)
+    return FilmSweep(gens, np.asarray(per_step))
 
 
 def with_generator(params: dict, generators: dict, style: int, rate: int) -> dict:

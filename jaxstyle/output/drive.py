@@ -50,8 +50,15 @@ class Driven(NamedTuple):
     seconds: float
 
 
+class Starts(NamedTuple):
+    """Per character its start ``states`` and walking ``speeds`` (m/s), :func:`start_states`."""
+
+    states: list
+    speeds: list[float]
+
+
 def start_states(model: CharacterModel, characters: Sequence, units_per_meter: float, fps: float, *,
-                 speed: float | None = None) -> tuple[list, list[float]]:
+                 speed: float | None = None) -> Starts:
     """Per character (anything with ``conditioning``, ``dataset`` and ``style``): its walking speed
     (``speed``, or its style's own, :meth:`CharacterModel.own_speed` over
     :func:`jaxstyle.data.datasets.style_rows`) and a start state
@@ -64,7 +71,7 @@ def start_states(model: CharacterModel, characters: Sequence, units_per_meter: f
         row = loop.start_row(c.dataset.inputs, v, units_per_meter=units_per_meter, rows=rows, fps=fps)
         starts.append(model.initial_state(c.dataset, row, c.conditioning))
         speeds.append(v)
-    return starts, speeds
+    return Starts(starts, speeds)
 
 
 def check_paths(path_names: Sequence[str], seconds: float) -> None:

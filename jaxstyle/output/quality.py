@@ -35,7 +35,7 @@ import dataclasses
 import math
 import os
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import jax
 import numpy as np
@@ -82,9 +82,17 @@ def subject(character: Character, kind: str, model: str = MODEL_2018) -> Subject
 Drawn = dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]
 
 
+class Measured(NamedTuple):
+    """The benchmark's ``rows`` (one per (character, path), then one per capture) and, per ``(title,
+    path)``, what is ``drawn``: the exported skeleton's joint positions and the path's ideal positions."""
+
+    rows: list[dict]
+    drawn: Drawn
+
+
 def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str]], signals: Sequence[paths.PathSignal],
                      rollouts, skeleton: Motion, speeds: Sequence[float]
-                     ) -> tuple[list[dict], Drawn]:
+                     ) -> Measured:
     """:func:`measure` each rollout of a batch of any model (leading axis ``len(pairs)``,
     ``pairs[k] = (subject index, path name)`` along ``signals[k]``), then one :func:`capture_row`
     per subject. Returns the rows and, per ``(title, path)``, the joint positions of the exported
@@ -103,12 +111,12 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
         results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row})
     for s in subjects:
         results.append(capture_row(s))
-    return results, drawn
+    return Measured(results, drawn)
 
 
 def run(model: CharacterModel, subjects: Sequence[Subject], skeleton: Motion, *,
         path_names: Sequence[str] = PROTOCOL_PATHS, seconds: float = SECONDS,
-        follow_seconds: float | None = loop.FOLLOW_SECONDS) -> tuple[list[dict], Drawn]:
+        follow_seconds: float | None = loop.FOLLOW_SECONDS) -> Measured:
     """Drive every subject of ``model`` (any :class:`jaxstyle.control.model.CharacterModel`: the
     2018 PFNN with style adapters, a 2022 style model) along every path at its style's own median
     speed (one batched rollout, :func:`jaxstyle.output.drive.drive`, with the path-following law of
