@@ -9,7 +9,7 @@ of real motion of each style (Mason et al. 2018 section 7.1's runtime; the 2022 
 
 It builds on ``experiments/fewshot_sweep.py`` (run it first): its base PFNN (``runs/fewshot/base``)
 and the few-shot adapters it chose (``runs/fewshot/sweep``). Every (style, path) character is
-generated in ONE batched, jitted rollout (:func:`jaxstyle.mason2018.pipeline.synthesize`), each from
+generated in ONE batched, jitted rollout (:func:`jaxstyle.output.synthesis.synthesize`), each from
 a real pose of its own style; a fourth character walks an exact 50/50 blend of the two few-shot
 styles' CP adapters. Written to ``--out``: ``<path>.gif``, ``bvh/<style>_<path>.bvh`` and ``.npz``,
 ``contact_sheet.png``, ``quality.csv`` and ``results.md``.
@@ -51,9 +51,11 @@ def main() -> None:
     try:
         base = pipeline.load_base(a.base, cache=a.cache)
         chosen, shots = pipeline.load_sweep(a.sweep, base, cache=a.cache)
-        result, chars = pipeline.synthesize(base, a.sweep, shots, chosen, a.out, base_styles=[a.base_style],
-                                            fewshot_sets=a.styles, blend=len(a.styles) >= 2, paths=a.paths,
-                                            seconds=a.seconds, speed=a.speed, foot_lock=a.foot_lock, mp4=a.mp4)
+        chars = pipeline.characters(base, a.sweep, shots, chosen, base_styles=[a.base_style], fewshot_sets=a.styles,
+                                    blend=len(a.styles) >= 2)
+        result = synthesis.synthesize(base.character_model(), chars, base.skeleton, a.out, synthesis.SynthesisOptions(
+            path_names=tuple(a.paths), seconds=a.seconds, speed=a.speed, foot_lock=a.foot_lock, mp4=a.mp4,
+            contact_sheet=True, progress=True))
     except pipeline.PipelineError as e:
         parser.error(f"{e} (run python experiments/fewshot_sweep.py first)")
     print("speeds (m/s): " + ", ".join(f"{n} {v:.2f}" for n, v in result.speeds.items()))

@@ -138,8 +138,8 @@ def test_a_toy_model_family_rolls_out_follows_paths_and_batches_like_single_roll
 def test_a_toy_model_family_is_synthesized_and_measured_by_the_shared_code(data, tmp_path):
     dataset, skeleton, chars = data
     model = toy_model(skeleton)
-    out = synthesis.synthesize(model, chars, skeleton, tmp_path, path_names=("straight",), seconds=2.0,
-                               progress=False)
+    out = synthesis.synthesize(model, chars, skeleton, tmp_path,
+                               synthesis.SynthesisOptions(path_names=("straight",), seconds=2.0))
     assert out.frames == 2 * 120 and {f.name for f in out.files} >= {"straight.gif", "quality.csv"}
     bvh = read_bvh(tmp_path / "bvh" / "Neutral_straight.bvh")
     assert bvh.num_frames == 120 and bvh.names == skeleton.names

@@ -31,7 +31,7 @@ from jaxstyle.mason2022 import pipeline
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
-from jaxstyle.output import metrics
+from jaxstyle.output import metrics, synthesis
 
 
 @pytest.fixture(scope="module")
@@ -288,8 +288,8 @@ def test_reloaded_pfnn_model_synthesizes_through_the_library_and_the_cli(run_dir
     run, model, _ = run_dir
     assert loaded.model.name == "PFNN FiLM" and loaded.model.config == model.config
     (char,) = synthesis2022.characters(loaded, styles=["Neutral"])
-    out = synthesis2022.synthesize(loaded, [char], tmp_path, paths=["straight"], seconds=1.0, gif=False,
-                                   progress=False)
+    out = synthesis.synthesize(loaded.character_model(), [char], loaded.data.skeleton, tmp_path,
+                               synthesis.SynthesisOptions(path_names=("straight",), seconds=1.0, gif=False))
     assert out.frames == 60 and (tmp_path / "quality.csv").is_file()
     with np.load(tmp_path / "bvh" / "Neutral_straight.npz") as z:
         assert np.isfinite(z["positions"]).all()

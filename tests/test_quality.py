@@ -24,7 +24,7 @@ from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2022 import pipeline
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import style_models
-from jaxstyle.output import footlock, metrics, quality
+from jaxstyle.output import footlock, metrics, quality, synthesis
 from jaxstyle.output.synthesis import EXPORTED_FIGURES
 
 SECONDS = 3.5  # stop_and_go: 2 s walk, then the stop command; 1.5 s to stop
@@ -59,8 +59,8 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
         ("LPN FiLM", s, p) for s in ("Neutral", "Crouched") for p in names] + [
         ("LPN FiLM", s, "capture") for s in ("Neutral", "Crouched")]
     # the same characters through `jaxstyle synthesize --model lpn-film`'s library path, written to files
-    synth = synthesis2022.synthesize(loaded, chars, tmp_path, paths=names, seconds=SECONDS, gif=False,
-                                     progress=False)
+    synth = synthesis.synthesize(loaded.character_model(), chars, skeleton, tmp_path,
+                                 synthesis.SynthesisOptions(path_names=names, seconds=SECONDS, gif=False))
     upm, fps, J = estimate_units_per_meter(skeleton), skeleton.fps, skeleton.num_joints
     for row in rows[:-2]:
         p, style = row["path"], row["style"]

@@ -18,7 +18,7 @@ from jaxstyle.data import folders, procedural
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2022 import finetune, pipeline
 from jaxstyle.mason2022 import synthesis as synthesis2022
-from jaxstyle.output import metrics
+from jaxstyle.output import metrics, synthesis
 from jaxstyle.output.drive import blend_character
 from jaxstyle.output.synthesis import quality_table
 
@@ -107,8 +107,8 @@ def test_synthesize_drives_characters_and_blends_with_the_2018_metrics(loaded, t
     model = loaded.character_model()
     # 4 characters on one 1 s path: the shapes of the command-line test below (one compiled rollout)
     chars = [a, b, blend_character(model, [a, b, c], [1.0, 0.0, 0.0]), blend_character(model, [a, b], [0.5, 0.5])]
-    out = synthesis2022.synthesize(loaded, chars, tmp_path, paths=["straight"], seconds=1.0, foot_lock=True,
-                                   gif=False, progress=False)
+    out = synthesis.synthesize(model, chars, loaded.data.skeleton, tmp_path,
+                               synthesis.SynthesisOptions(path_names=("straight",), seconds=1.0, gif=False))
     assert out.frames == 4 * 60 and len(out.rows) == 4 + 2  # + a real clip per style
     skeleton = loaded.data.skeleton
     assert "quality.csv" in [f.name for f in out.files]

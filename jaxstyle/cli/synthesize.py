@@ -1,5 +1,5 @@
-"""``jaxstyle synthesize``: base and few-shot styles along paths, with the 2018 PFNN
-(:func:`jaxstyle.mason2018.pipeline.synthesize`) or a trained 2022 style model
+"""``jaxstyle synthesize``: base and few-shot styles along paths (:func:`jaxstyle.output.synthesis.synthesize`),
+with the 2018 PFNN (:func:`jaxstyle.mason2018.pipeline.characters`) or a trained 2022 style model
 (:mod:`jaxstyle.mason2022.synthesis`)."""
 
 from __future__ import annotations
@@ -57,16 +57,26 @@ def add_arguments(p) -> None:
     add_synth_args(p, paths=("circle", "zigzag"), seconds=8.0)
 
 
+def synthesis_options(args, **kwargs):
+    """The :class:`jaxstyle.output.synthesis.SynthesisOptions` of the command's flags (``--paths``,
+    ``--synth-seconds``, ``--speed``, ``--foot-lock``, ``--mp4``, ``--every``)."""
+    from jaxstyle.output.synthesis import SynthesisOptions
+
+    return SynthesisOptions(path_names=tuple(args.paths), seconds=args.synth_seconds, speed=args.speed,
+                            foot_lock=args.foot_lock, mp4=args.mp4, every=args.every, progress=progress(args),
+                            **kwargs)
+
+
 def synthesize_and_report(run: Run, args, base, shots, chosen, base_styles, sets, blend=False):
     """Synthesise into RUN/synthesis and print the rollout's speed and the quality table."""
     from jaxstyle.mason2018 import pipeline
     from jaxstyle.output import synthesis
 
     t0 = time.perf_counter()
-    result, chars = pipeline.synthesize(base, run.dir / "sweep", shots, chosen, run.dir / "synthesis",
-                                        base_styles=base_styles, fewshot_sets=sets, blend=blend, paths=args.paths,
-                                        seconds=args.synth_seconds, speed=args.speed, foot_lock=args.foot_lock,
-                                        mp4=args.mp4, every=args.every, progress=progress(args))
+    chars = pipeline.characters(base, run.dir / "sweep", shots, chosen, base_styles=base_styles, fewshot_sets=sets,
+                                blend=blend)
+    result = synthesis.synthesize(base.character_model(), chars, base.skeleton, run.dir / "synthesis",
+                                  synthesis_options(args, contact_sheet=True))
     run.say(f"synthesis: {result.summary(len(chars), len(args.paths))}; with GIF and BVH writing "
             f"{elapsed(t0)}")
     for line in synthesis.quality_table(result.rows):
@@ -91,9 +101,8 @@ def synthesize_lpn_and_report(run: Run, args, loaded, base_styles, sets, out: Pa
 
     t0 = time.perf_counter()
     chars = synthesis2022.characters(loaded, styles=base_styles, new_styles=sets, blend=blend)
-    result = synthesis2022.synthesize(loaded, chars, out, paths=args.paths, seconds=args.synth_seconds,
-                                      speed=args.speed, foot_lock=args.foot_lock, mp4=args.mp4, every=args.every,
-                                      progress=progress(args))
+    result = synthesis.synthesize(loaded.character_model(), chars, loaded.data.skeleton, out,
+                                  synthesis_options(args, contact_sheet=True))
     run.say(f"synthesis with {loaded.model.name} ({loaded.epochs} epochs, {loaded.directory}): "
             f"{result.summary(len(chars), len(args.paths))}; with GIF and BVH writing "
             f"{elapsed(t0)}")

@@ -15,8 +15,8 @@ Mason et al. 2018 end to end, on any folder in the 100STYLE layout
    rate) in one compiled program (:func:`jaxstyle.mason2018.selection.fewshot_sweep`), chooses a
    rate per set and writes the report (CSV, heatmap, chosen rates, adapters) and ``sweep.json``;
 4. report: :func:`sweep_table` and :func:`check_table` (Markdown lines);
-5. synthesis: :func:`characters` gathers base and few-shot styles and :func:`synthesize` drives them
-   along paths (:func:`jaxstyle.output.synthesis.synthesize`);
+5. synthesis: :func:`characters` gathers base and few-shot styles, which
+   :func:`jaxstyle.output.synthesis.synthesize` drives along paths with :meth:`Base.character_model`;
 6. timing: :mod:`jaxstyle.mason2018.bench` (``jaxstyle bench``, the paper's Table 1).
 
 The ``jaxstyle`` commands (:mod:`jaxstyle.cli`) and ``experiments/fewshot_sweep.py``,
@@ -67,9 +67,8 @@ from jaxstyle.motion import Motion
 from jaxstyle.motion.bvh import frame_rate, read_joint_names
 from jaxstyle.motion.skeleton import JointMap
 from jaxstyle.nn import pfnn
-from jaxstyle.output import drive, synthesis
+from jaxstyle.output import drive
 from jaxstyle.output.drive import Character
-from jaxstyle.output.synthesis import SynthesisResult
 from jaxstyle.train.checkpoint import json_text, read_json
 from jaxstyle.train.scan import DEFAULT_RATES
 
@@ -299,13 +298,6 @@ class LoadedSweep(NamedTuple):
     shots: datasets.Dataset
 
 
-class Synthesized(NamedTuple):
-    """:func:`synthesize`'s ``result`` (rows, files, timing) and the ``characters`` it drove."""
-
-    result: SynthesisResult
-    characters: list[Character]
-
-
 def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLike, *,
               rates: Sequence[float] = DEFAULT_RATES, epochs: int = 100, adapter_dropout_only: bool = False,
               matmul_dtype: str = "float32", skeleton: Motion | None = None, cache: str | os.PathLike | None = None,
@@ -471,19 +463,3 @@ def default_sets(chosen: dict, limit: int = 3) -> list[str]:
     """The few-shot sets to show by default: the sweep's walking (``_FW``) sets, else any, up to ``limit``."""
     walks = [s for s in chosen if s.endswith("_FW")]
     return (walks or list(chosen))[:limit]
-
-
-def synthesize(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.Dataset | None,
-               chosen: dict | None, directory: str | os.PathLike, *, base_styles: Sequence[str] = (),
-               fewshot_sets: Sequence[str] = (), blend: bool = False, paths: Sequence[str] = ("circle",),
-               seconds: float = 8.0, speed: float | None = None, foot_lock: bool = True, mp4: bool = False,
-               every: int = 2, progress: bool = True) -> Synthesized:
-    """Base styles and few-shot sets (:func:`characters`) along ``paths`` in one batched rollout,
-    written to ``directory`` (:func:`jaxstyle.output.synthesis.synthesize`: GIFs, BVH files, a
-    contact sheet, quality.csv)."""
-    chars = characters(base, sweep_dir, shots, chosen, base_styles=base_styles, fewshot_sets=fewshot_sets,
-                       blend=blend)
-    result = synthesis.synthesize(base.character_model(), chars, base.skeleton, Path(directory),
-                                  path_names=list(paths), seconds=seconds, speed=speed, foot_lock=foot_lock, mp4=mp4,
-                                  every=every, contact_sheet=True, progress=progress)
-    return Synthesized(result, chars)

@@ -12,7 +12,7 @@ them, and drive them along paths (Mason, Starke & Komura 2022, section 4.4).
    (``finetuned_generators.npz`` at the rate of ``chosen_rates.json``: the FiLM vector of the new
    style's training clips under its fine-tuned generator), and a 2- or 3-way blend of the first
    characters (:func:`jaxstyle.output.drive.blend_character`, section 4.4's interpolation);
-3. :func:`synthesize`: :func:`jaxstyle.output.synthesis.synthesize` with the model as a
+3. synthesis: :func:`jaxstyle.output.synthesis.synthesize` with the model as a
    :class:`jaxstyle.control.lpn_controller.StyleNetModel` (:meth:`Loaded.character_model`; one
    batched rollout; GIF, BVH files, the quality table), the same synthesis as the 2018 model's.
 
@@ -43,9 +43,8 @@ from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.output import drive, synthesis
+from jaxstyle.output import drive
 from jaxstyle.output.drive import Character
-from jaxstyle.output.synthesis import SynthesisResult
 
 MODELS = {"lpn-film": "LPN FiLM", "lpn-onehot": "LPN One-hot", "lpn-resad": "LPN Resad", "mann-film": "MANN FiLM",
           "pfnn-film": "PFNN FiLM", "pfnn-onehot": "PFNN One-hot", "pfnn-resad": "PFNN Resad"}
@@ -184,17 +183,6 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
     if not out:
         raise PipelineError("no styles to drive")
     return out
-
-
-def synthesize(loaded: Loaded, chars: Sequence[Character], directory: str | os.PathLike, *,
-               paths: Sequence[str] = ("circle",), seconds: float = 8.0, speed: float | None = None,
-               foot_lock: bool = True, gif: bool = True, mp4: bool = False, every: int = 2,
-               progress: bool = True) -> SynthesisResult:
-    """``chars`` along ``paths`` in one batched rollout of the loaded model, written to ``directory``
-    (:func:`jaxstyle.output.synthesis.synthesize`: GIFs, BVH files, a contact sheet, quality.csv)."""
-    return synthesis.synthesize(loaded.character_model(), chars, loaded.data.skeleton, Path(directory),
-                                path_names=list(paths), seconds=seconds, speed=speed, foot_lock=foot_lock, gif=gif,
-                                mp4=mp4, every=every, contact_sheet=gif, progress=progress)
 
 
 def measure_quality(loaded: Loaded, styles: Sequence[str], new_styles: Sequence[str] = (), **kwargs):

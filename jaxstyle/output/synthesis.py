@@ -53,53 +53,66 @@ class SynthesisResult:
                 f"{self.seconds:.2f} s ({self.frames / max(self.seconds, 1e-9):,.0f} frames/s)")
 
 
-def synthesize(model: CharacterModel, characters: Sequence[Character], skeleton: Motion, out: str | os.PathLike, *,
-               path_names: Sequence[str] = ("circle",), seconds: float = 8.0, speed: float | None = None,
-               foot_lock: bool = True, gif: bool = True, mp4: bool = False, every: int = 2,
-               contact_sheet: bool = False, reference: bool = True, progress: bool = False) -> SynthesisResult:
-    """Drive every character along every path and write the results under ``out``.
+@dataclasses.dataclass(frozen=True)
+class SynthesisOptions:
+    """What a synthesis drives and writes.
 
-    Args:
-      model: any :class:`jaxstyle.control.model.CharacterModel` (the 2018
-        :class:`jaxstyle.control.controller.PFNNModel`, a 2022
-        :class:`jaxstyle.control.lpn_controller.StyleNetModel`).
-      characters: the styles (:class:`jaxstyle.output.drive.Character`, their conditionings of one
-        kind for the model).
-      skeleton: a clip of the training skeleton (bone lengths, fps, units).
-      path_names: any of :data:`jaxstyle.control.paths.PATHS`; ``seconds`` long each.
-      speed: m/s for every character; ``None``: each walks at its style's own median speed.
-      foot_lock: lock the feet while planted (:mod:`jaxstyle.output.footlock`) in the BVH files and
-        the animations (drawn from the exported skeleton); ``gif``/``mp4``: write animations
-        (``mp4`` needs ffmpeg); ``every``: draw every n-th frame of the animations;
-        ``contact_sheet``: a PNG strip of 6 frames of the first path.
-      reference: add the quality figures of one real clip per style to the table.
+    ``path_names``: any of :data:`jaxstyle.control.paths.PATHS`, ``seconds`` long each; ``speed``:
+    m/s for every character (``None``: each walks at its style's own median speed);
+    ``foot_lock``: lock the feet while planted (:mod:`jaxstyle.output.footlock`) in the BVH files
+    and the animations (drawn from the exported skeleton); ``gif``/``mp4``: write animations
+    (``mp4`` needs ffmpeg), drawing every ``every``-th frame; ``contact_sheet``: a PNG strip of 6
+    frames of the first path; ``reference``: add the quality figures of one real clip per style to
+    the table; ``progress``: progress bars while drawing."""
+
+    path_names: tuple[str, ...] = ("circle",)
+    seconds: float = 8.0
+    speed: float | None = None
+    foot_lock: bool = True
+    gif: bool = True
+    mp4: bool = False
+    every: int = 2
+    contact_sheet: bool = False
+    reference: bool = True
+    progress: bool = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "path_names", tuple(self.path_names))
+
+
+def synthesize(model: CharacterModel, characters: Sequence[Character], skeleton: Motion, out: str | os.PathLike,
+               options: SynthesisOptions = SynthesisOptions()) -> SynthesisResult:
+    """Drive every character along every path of ``options`` (:class:`SynthesisOptions`) in one
+    batched rollout and write the results under ``out``.
+
+    ``model``: any :class:`jaxstyle.control.model.CharacterModel` (the 2018
+    :class:`jaxstyle.control.controller.PFNNModel`, a 2022
+    :class:`jaxstyle.control.lpn_controller.StyleNetModel`); ``characters``: the styles
+    (:class:`jaxstyle.output.drive.Character`, their conditionings of one kind for the model);
+    ``skeleton``: a clip of the training skeleton (bone lengths, fps, units).
 
     Writes ``<path>.gif`` per path, ``bvh/<label>_<path>.bvh`` and ``.npz`` per character and
     path, ``contact_sheet.png`` if asked, and ``quality.csv`` (:func:`write_results`).
     """
-    driven = drive.drive(model, characters, path_names=path_names, seconds=seconds,
-                         units_per_meter=estimate_units_per_meter(skeleton), fps=skeleton.fps, speed=speed,
+    o = options
+    driven = drive.drive(model, characters, path_names=o.path_names, seconds=o.seconds,
+                         units_per_meter=estimate_units_per_meter(skeleton), fps=skeleton.fps, speed=o.speed,
                          timed=True)
-    rows, files = write_results(out, characters, driven.pairs, driven.signals, driven.rollouts, skeleton,
-                                foot_lock=foot_lock, gif=gif, mp4=mp4, every=every, contact_sheet=contact_sheet,
-                                reference=reference, progress=progress)
+    rows, files = write_results(out, characters, driven, skeleton, options)
     return SynthesisResult(rows, files, driven.seconds, len(driven.pairs) * int(driven.rollouts.positions.shape[1]),
                            dict(zip([c.title for c in characters], driven.speeds, strict=True)))
 
 
-def write_results(out: str | os.PathLike, characters: Sequence, pairs: Sequence[tuple[int, str]], signals: Sequence,
-                  rollouts, skeleton: Motion, *, foot_lock: bool = True, gif: bool = True, mp4: bool = False,
-                  every: int = 2, contact_sheet: bool = False, reference: bool = True,
-                  progress: bool = False) -> tuple[list[dict], list[Path]]:
-    """What a synthesis writes, from a batched rollout of any model (its
-    :class:`jaxstyle.control.model.Frames`, leading axis ``len(pairs)``): per path a GIF (and MP4,
-    contact sheet) of the exported skeleton (after foot locking with ``foot_lock``: what the BVH
-    files hold), per (character, path) the
+def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Driven, skeleton: Motion,
+                  options: SynthesisOptions = SynthesisOptions()) -> tuple[list[dict], list[Path]]:
+    """What a synthesis writes, from a batched rollout of any model (:class:`jaxstyle.output.drive.Driven`:
+    its :class:`jaxstyle.control.model.Frames` with leading axis ``len(pairs)``, the pairs and path
+    signals): per path a GIF (and MP4, contact sheet) of the exported skeleton (after foot locking
+    with ``options.foot_lock``: what the BVH files hold), per (character, path) the
     :mod:`jaxstyle.output.metrics` row, the BVH and ``.npz``, the real clips' rows, ``quality.csv``.
 
     ``characters``: anything with ``title``, ``label``, ``dataset`` and ``style``
-    (:class:`jaxstyle.output.drive.Character`); ``pairs``: ``(character index, path name)``
-    of each rollout; ``signals``: the :class:`jaxstyle.control.paths.PathSignal` of each pair. The
+    (:class:`jaxstyle.output.drive.Character`). The
     metrics read the skeleton's joints (the LPN's extra hand points are left out), with the same
     functions for both models: :func:`jaxstyle.output.metrics.motion_quality` of the network's joints
     (the row's first columns, path error of the root joint's ground point) and the benchmark's
@@ -108,6 +121,8 @@ def write_results(out: str | os.PathLike, characters: Sequence, pairs: Sequence[
     foot, how deep a foot goes below the floor, its bone error, the largest network-to-BVH joint
     distance, heading error, time to stop, ankle jerk). Returns the quality rows and the files written."""
     out = Path(out)
+    pairs, signals, rollouts = driven.pairs, driven.signals, driven.rollouts
+    foot_lock, every, progress = options.foot_lock, options.every, options.progress
     upm = estimate_units_per_meter(skeleton)
     fps = skeleton.fps
     path_names = list(dict.fromkeys(p for _, p in pairs))
@@ -127,11 +142,11 @@ def write_results(out: str | os.PathLike, characters: Sequence, pairs: Sequence[
         chars = [drawn(shown[k]) for k in idx]
         path_xz = [signals[k].positions for k in idx]
         kwargs = dict(titles=titles, paths=path_xz, units_per_meter=upm, every=every, progress=progress)
-        if gif:
+        if options.gif:
             files.append(preview.render_gif(out / f"{p}.gif", chars, skeleton.parents, fps, **kwargs))
-        if mp4:
+        if options.mp4:
             files.append(preview.render_mp4(out / f"{p}.mp4", chars, skeleton.parents, fps, **kwargs))
-        if contact_sheet and p == path_names[0]:
+        if options.contact_sheet and p == path_names[0]:
             files.append(preview.contact_sheet(out / "contact_sheet.png", chars, skeleton.parents, frames=6,
                                                titles=titles, paths=path_xz, units_per_meter=upm, fps=fps))
     for k, (s, p) in enumerate(pairs):
@@ -146,7 +161,7 @@ def write_results(out: str | os.PathLike, characters: Sequence, pairs: Sequence[
             motion = e.lock.motion if foot_lock else export.rollout_motion(one, skeleton)
             files += export.save_rollout(out / "bvh" / f"{c.label}_{p}", one, skeleton, motion=motion).values()
         rows.append(row)
-    if reference:
+    if options.reference:
         seen = set()
         for c in characters:
             key = (id(c.dataset), c.style)
