@@ -143,6 +143,12 @@ def test_each_check_criterion_can_fail_a_pair():
         out[k][0, r] = v
     passed = check_lib.passes_check(out, ref["contact_fraction"], ref["base_skating_m_s"], ref["speed_m_s"], check)
     np.testing.assert_array_equal(passed[0], [True] + [False] * len(bad))
+    # the refusal's wording names exactly the criterion each pair fails, nothing for the passing one
+    named = {"finite": "did not stay finite", "bone_error": "bone error", "contact_fraction": "feet on the floor",
+             "skating_m_s": "foot skating", "progress": "travelled"}
+    for r in range(len(bad) + 1):
+        why = check_lib.failed_criteria({k: float(v[0, r]) for k, v in out.items()}, 1.0, 0.3, 1.2, check)
+        assert why == [] if r == 0 else (len(why) == 1 and named[bad[r - 1][0]] in why[0]), (r, why)
     # a style that stands still is not held to the distance
     still = dict(ref, speed_m_s=np.array([0.0]))
     assert check_lib.passes_check({k: v[:, [0, 5]] for k, v in out.items()}, still["contact_fraction"],

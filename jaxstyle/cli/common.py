@@ -396,6 +396,9 @@ def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds:
     p.add_argument("--foot-ik", action=_FootIK, nargs=0, help=argparse.SUPPRESS)
     p.add_argument("--mp4", action="store_true", help="also write MP4s (needs ffmpeg)")
     p.add_argument("--every", type=int, default=2, help="draw every n-th frame in the animations")
+    p.add_argument("--allow-failed", action="store_true",
+                   help="drive few-shot sets whose closed-loop check failed at every rate (marked [FAILED CHECK] in "
+                        "the tables); by default such a set is refused with one line")
 
 
 # --- helpers ------------------------------------------------------------------------------------

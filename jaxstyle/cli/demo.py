@@ -244,7 +244,7 @@ def run(args, run: Run) -> None:
     files = [run.dir / "base", report["csv"], report["heatmap"], report["chosen"]]
     if not args.no_quality:
         files.append(report_quality(run, args, lambda names, seconds: pfnn_quality(
-            base, run.dir / "sweep", shots, chosen, base_styles, sets, names, seconds),
+            base, run.dir / "sweep", shots, chosen, base_styles, sets, names, seconds, args.allow_failed),
             run.dir / "synthesis" / "quality_targets.csv"))
     run.say("")
     written(run, "written", files + [f for f in synth.files if f.suffix in (".gif", ".mp4", ".csv", ".png")]
@@ -254,12 +254,13 @@ def run(args, run: Run) -> None:
 
 
 def pfnn_quality(base, sweep_dir: Path, shots, chosen: dict, base_styles: Sequence[str], sets: Sequence[str],
-                 path_names: Sequence[str], seconds: float):
+                 path_names: Sequence[str], seconds: float, allow_failed: bool = False):
     """The demo's 2018 characters (base styles, few-shot sets) measured by :func:`jaxstyle.output.quality.run`."""
     from jaxstyle.mason2018 import pipeline
     from jaxstyle.output import quality
 
-    chars = pipeline.characters(base, sweep_dir, shots, chosen, base_styles=base_styles, fewshot_sets=sets)
+    chars = pipeline.characters(base, sweep_dir, shots, chosen, base_styles=base_styles, fewshot_sets=sets,
+                                allow_failed=allow_failed)
     subjects = [quality.subject(c, "base" if i < len(base_styles) else "few-shot") for i, c in enumerate(chars)]
     return quality.run(base.character_model(), subjects, base.skeleton, path_names=path_names, seconds=seconds)
 

@@ -71,6 +71,9 @@ def add_arguments(p) -> None:
                    help="fine-tuning epochs of a style learned live (default %(default)s, the sweep's)")
     p.add_argument("--rates", type=finite, nargs="+", default=SWEEP_RATES, help="dropout rates to sweep when learning")
     p.add_argument("--record-seconds", type=finite, default=10.0, help="seconds the Record button saves by default")
+    p.add_argument("--allow-failed", action="store_true",
+                   help="offer few-shot and learned styles whose closed-loop check failed at every rate (marked "
+                        "[FAILED CHECK]); by default they are left out, with one line saying so")
 
 
 def _run_demo(run: Run, args) -> None:
@@ -122,7 +125,7 @@ def run(args, run: Run) -> None:
     server = PlayServer(args.run, host=args.host, port=args.port, learn_epochs=args.learn_epochs,
                         learn_rates=tuple(args.rates), record_seconds=args.record_seconds, model=args.model,
                         log=run.say, token=args.token, data_dirs=tuple(args.clip_dir),
-                        max_upload_bytes=int(args.max_upload_mb * 1e6))
+                        max_upload_bytes=int(args.max_upload_mb * 1e6), allow_failed=args.allow_failed)
     try:
         server.start()  # says where the page is, then loads the run
         while True:

@@ -74,7 +74,7 @@ def synthesize_and_report(run: Run, args, base, shots, chosen, base_styles, sets
 
     t0 = time.perf_counter()
     chars = pipeline.characters(base, run.dir / "sweep", shots, chosen, base_styles=base_styles, fewshot_sets=sets,
-                                blend=blend)
+                                blend=blend, allow_failed=args.allow_failed)
     result = synthesis.synthesize(base.character_model(), chars, base.skeleton, run.dir / "synthesis",
                                   synthesis_options(args, contact_sheet=True))
     run.say(f"synthesis: {result.summary(len(chars), len(args.paths))}; with GIF and BVH writing "
@@ -100,7 +100,8 @@ def synthesize_lpn_and_report(run: Run, args, loaded, base_styles, sets, out: Pa
     from jaxstyle.output import synthesis
 
     t0 = time.perf_counter()
-    chars = synthesis2022.characters(loaded, styles=base_styles, new_styles=sets, blend=blend)
+    chars = synthesis2022.characters(loaded, styles=base_styles, new_styles=sets, blend=blend,
+                                     allow_failed=getattr(args, "allow_failed", False))
     result = synthesis.synthesize(loaded.character_model(), chars, loaded.data.skeleton, out,
                                   synthesis_options(args, contact_sheet=True))
     run.say(f"synthesis with {loaded.model.name} ({loaded.epochs} epochs, {loaded.directory}): "

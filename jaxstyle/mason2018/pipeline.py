@@ -68,6 +68,7 @@ from jaxstyle.motion.bvh import frame_rate, read_joint_names
 from jaxstyle.motion.skeleton import JointMap
 from jaxstyle.nn import pfnn
 from jaxstyle.output import drive
+from jaxstyle.output.check import FAILED_MARK, failed_check
 from jaxstyle.output.drive import Character
 from jaxstyle.train.checkpoint import json_text, read_json
 from jaxstyle.train.scan import DEFAULT_RATES
@@ -434,11 +435,16 @@ def _read_sweep_json(path: Path) -> dict:
 
 
 def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.Dataset | None, chosen: dict | None,
-               *, base_styles: Sequence[str] = (), fewshot_sets: Sequence[str] = (), blend: bool = False
-               ) -> list[Character]:
+               *, base_styles: Sequence[str] = (), fewshot_sets: Sequence[str] = (), blend: bool = False,
+               allow_failed: bool = False) -> list[Character]:
     """:class:`~jaxstyle.output.drive.Character` s: base styles (the base network with that style's
     adapter), few-shot sets (their chosen adapters from ``sweep_dir``), and with ``blend`` a 50/50
-    blend of the first two few-shot sets (:func:`jaxstyle.output.drive.blend_character`)."""
+    blend of the first two few-shot sets (:func:`jaxstyle.output.drive.blend_character`).
+
+    A few-shot set that failed the closed-loop check at every rate
+    (:func:`jaxstyle.output.check.failed_check`) is refused with one line naming it and the failing
+    figures, unless ``allow_failed``: then its title carries
+    :data:`jaxstyle.output.check.FAILED_MARK`."""
     out = []
     for style in base_styles:
         if style not in base.dataset.styles:
@@ -449,8 +455,13 @@ def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
     for name in fewshot_sets:
         if chosen is None or name not in chosen:
             raise PipelineError(f"unknown few-shot set {name!r}; the sweep has {', '.join(chosen or {}) or 'none'}")
+        failed = failed_check(chosen[name], name)
+        if failed and not allow_failed:
+            raise PipelineError(f"few-shot set {failed}; it is not used (--allow-failed uses it anyway, marked in "
+                                "the tables)")
         adapter = selection.load_adapter(Path(sweep_dir) / "adapters" / name, base.model)
-        out.append(Character(f"{name} (few-shot, rate {chosen[name]['rate']:g})", name, adapter, shots, name))
+        mark = FAILED_MARK if failed else ""
+        out.append(Character(f"{name} (few-shot, rate {chosen[name]['rate']:g}){mark}", name, adapter, shots, name))
     if blend:
         shot_chars = out[len(base_styles):]
         if len(shot_chars) < 2:

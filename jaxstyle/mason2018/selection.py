@@ -63,7 +63,7 @@ from jaxstyle.mason2018.train import TrainData
 from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
-from jaxstyle.output.check import choose_rates, passes_check, rollout_measures
+from jaxstyle.output.check import choose_rates, failed_criteria, passes_check, rollout_measures
 from jaxstyle.train import defaults, scan
 from jaxstyle.train.checkpoint import Checkpointer, json_text, read_json
 
@@ -222,6 +222,20 @@ class SweepResult:
     train_rows: tuple[int, ...]
     validation_rows: tuple[int, ...]
     seconds: dict[str, float]
+    check: RolloutCheck = dataclasses.field(default_factory=RolloutCheck)
+
+    def failed(self, style: str) -> list[str]:
+        """The closed-loop check's criteria the chosen pair of ``style`` fails
+        (:func:`jaxstyle.output.check.failed_criteria`; ``[]`` when it passed, or when the result
+        holds no reference figures to judge against)."""
+        s = self.styles.index(style)
+        r = int(self.chosen[s])
+        ref = self.reference
+        if not all(k in ref for k in ("contact_fraction", "base_skating_m_s", "speed_m_s")):
+            return []
+        return failed_criteria({k: float(self.rollout[k][s, r]) for k in ROLLOUT_FIELDS if k != "passed"},
+                               float(ref["contact_fraction"][s]), float(ref["base_skating_m_s"][s]),
+                               float(ref["speed_m_s"][s]), self.check)
 
     def chosen_rate(self, style: str) -> float:
         return self.rates[int(self.chosen[self.styles.index(style)])]
@@ -276,7 +290,8 @@ def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], data
     final_train = np.stack([np.nanmean(losses[s, :, mask[s].sum() - per_epoch[s]:mask[s].sum()], axis=-1)
                             for s in range(len(data.styles))])
     return SweepResult(data.styles, tuple(config.rates), adapters, final_train, val, rollout, reference, chosen,
-                       passed, tuple(len(r) for r in data.train_rows), tuple(len(r) for r in data.val_rows), timings)
+                       passed, tuple(len(r) for r in data.train_rows), tuple(len(r) for r in data.val_rows), timings,
+                       check)
 
 
 def write_report(result: SweepResult, directory: str | os.PathLike, config: fewshot.SweepConfig, *,
@@ -329,8 +344,13 @@ def write_report(result: SweepResult, directory: str | os.PathLike, config: fews
                            + [int(result.chosen[s] == r)])
     csv_tmp = tmp
     plot_heatmap(result, paths["heatmap"])
-    chosen = {style: {"rate": result.rates[int(result.chosen[s])], "validation_loss": float(result.validation_loss[
-        s, result.chosen[s]]), "passed_check": bool(result.chosen_passed[s])} for s, style in enumerate(result.styles)}
+    chosen = {}
+    for s, style in enumerate(result.styles):
+        chosen[style] = {"rate": result.rates[int(result.chosen[s])],
+                         "validation_loss": float(result.validation_loss[s, result.chosen[s]]),
+                         "passed_check": bool(result.chosen_passed[s])}
+        if not result.chosen_passed[s]:  # every rate failed: what the chosen one failed, for the refusal
+            chosen[style]["failed"] = result.failed(style)
     tmp = paths["chosen"].with_name("chosen_rates.json.tmp")
     tmp.write_text(json_text({**earlier, **chosen}))  # strict JSON: a NaN loss is null
     # both written in full first, then renamed back to back, the index last
@@ -345,7 +365,8 @@ def write_report(result: SweepResult, directory: str | os.PathLike, config: fews
 
 def read_chosen(path: str | os.PathLike) -> dict[str, dict]:
     """A ``chosen_rates.json``, checked: an object of set name -> ``{"rate": a number in [0, 1),
-    "validation_loss": a number or null, "passed_check": true or false}``. A file that is not so
+    "validation_loss": a number or null, "passed_check": true or false, and for a set whose every
+    rate failed the check "failed": the criteria its chosen rate failed}``. A file that is not so
     (hand-edited, damaged) raises a PipelineError naming the file and the key."""
     path = Path(path)
     try:
@@ -367,6 +388,9 @@ def read_chosen(path: str | os.PathLike) -> dict[str, dict]:
         if not isinstance(info.get("passed_check", True), bool):
             raise PipelineError(f"{where}: 'passed_check' must be true or false, got "
                                  f"{json.dumps(info['passed_check'])}")
+        failed = info.get("failed", [])
+        if not isinstance(failed, list) or not all(isinstance(f, str) for f in failed):
+            raise PipelineError(f"{where}: 'failed' must be a list of strings, got {json.dumps(failed)}")
     return data
 
 

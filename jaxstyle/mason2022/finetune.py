@@ -24,7 +24,7 @@ from jaxstyle.data.folders import PipelineError, user_clip_specs
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.mason2022.pipeline import LPNData, Model
 from jaxstyle.nn import film_generator as film
-from jaxstyle.output.check import choose_rates
+from jaxstyle.output.check import choose_rates, failed_criteria
 from jaxstyle.train import defaults
 from jaxstyle.train.checkpoint import json_text
 from jaxstyle.train.defaults import FILM_DEFAULT_RATES
@@ -248,6 +248,11 @@ def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
     for s, style in enumerate(result.styles):
         saved[style]["check_passed"] = bool(passed[s])
         saved[style]["check"] = {k: _number(checked[k][s, chosen[s]]) for k in CHECK_FIELDS}
+        if not passed[s]:  # every rate failed: what the chosen one failed, for the refusal
+            saved[style]["failed"] = failed_criteria(
+                {k: float(checked[k][s, chosen[s]]) for k in CHECK_FIELDS if k != "passed"},
+                float(checked["real_contact_fraction"][s]), float(checked["base_skating_m_s"][s]),
+                float(checked["speed_m_s"][s]), check)
     paths["chosen"].write_text(json_text(saved))
     (directory / "generators").mkdir(parents=True, exist_ok=True)
     for style in result.styles:

@@ -44,6 +44,7 @@ from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import drive
+from jaxstyle.output.check import FAILED_MARK, failed_check
 from jaxstyle.output.drive import Character
 
 MODELS = {"lpn-film": "LPN FiLM", "lpn-onehot": "LPN One-hot", "lpn-resad": "LPN Resad", "mann-film": "MANN FiLM",
@@ -138,11 +139,14 @@ def _generators(model: pipeline.Model, path: Path) -> dict:
 
 
 def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequence[str] = (),
-               finetune_dir: str | os.PathLike | None = None, blend: Sequence[float] | None = None
-               ) -> list[Character]:
+               finetune_dir: str | os.PathLike | None = None, blend: Sequence[float] | None = None,
+               allow_failed: bool = False) -> list[Character]:
     """:class:`~jaxstyle.output.drive.Character` s: training ``styles``, ``new_styles``
     fine-tuned by the FiLM sweep (``finetune_dir``: default the model's folder) at their chosen rate,
-    and with ``blend`` (2 or 3 barycentric weights) a blend of the first 2 or 3 of them."""
+    and with ``blend`` (2 or 3 barycentric weights) a blend of the first 2 or 3 of them. A new style
+    whose closed-loop check failed at every rate (:func:`jaxstyle.output.check.failed_check`) is
+    refused with one line, unless ``allow_failed``: then its title carries
+    :data:`jaxstyle.output.check.FAILED_MARK`."""
     model, data = loaded.model, loaded.data
     film_model = model.config.modulation == "film"
     out = []
@@ -167,11 +171,16 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
         for name in new_styles:
             if name not in chosen or name not in new.styles:
                 raise PipelineError(f"unknown new style {name!r}; {folder} has {', '.join(chosen) or 'none'}")
+            failed = failed_check(chosen[name], name)
+            if failed and not allow_failed:
+                raise PipelineError(f"new style {failed}; it is not used (--allow-failed uses it anyway, marked in "
+                                    "the tables)")
             s = new.styles.index(name)
             gen = jax.tree.map(lambda v, s=s, r=int(chosen[name]["rate_index"]): v[s, r], gens)
             runtime = film.clip_films(gen, new.clips[new.train_clips[s]]).mean(axis=0)
-            out.append(Character(f"{name} (fine-tuned, rate {chosen[name]['rate']:g})", name, runtime, data.new,
-                                    name))
+            mark = FAILED_MARK if failed else ""
+            out.append(Character(f"{name} (fine-tuned, rate {chosen[name]['rate']:g}){mark}", name, runtime,
+                                 data.new, name))
     if blend is not None:
         k = len(blend)
         if len(out) < k:

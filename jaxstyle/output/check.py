@@ -58,6 +58,46 @@ def passes_check(out: dict[str, np.ndarray], real_contact_fraction_S, base_skati
     return ok
 
 
+def failed_criteria(measures: dict[str, float], real_contact_fraction: float, base_skating_m_s: float,
+                    speed_m_s: float, check: RolloutCheck) -> list[str]:
+    """The criteria of :func:`passes_check` that one pair fails, each as one phrase with its figure
+    and limit (``[]`` when it passes): ``measures`` are one pair's figures of
+    :func:`rollout_measures`, the others as in :func:`passes_check`."""
+    if not measures.get("finite", 0.0):
+        return ["the rollout did not stay finite"]
+    out = []
+    bone, contact, skating, progress = (float(measures[k]) for k in ("bone_error", "contact_fraction",
+                                                                        "skating_m_s", "progress"))
+    if not bone <= check.max_bone_error:
+        out.append(f"bone error {bone:.3f} > {check.max_bone_error:g}")
+    if not contact >= check.min_contact_ratio * real_contact_fraction:
+        out.append(f"feet on the floor {contact:.2f} of frames < {check.min_contact_ratio:g} x the clip's "
+                   f"{real_contact_fraction:.2f}")
+    limit = check.max_skating_ratio * base_skating_m_s + check.skating_slack_m_s
+    if np.isfinite(base_skating_m_s) and not np.isnan(skating) and not skating <= limit:
+        out.append(f"foot skating {skating:.2f} m/s > {limit:.2f} ({check.max_skating_ratio:g} x the base's "
+                   f"{base_skating_m_s:.2f} + {check.skating_slack_m_s:g})")
+    if speed_m_s >= 0.1 and not check.min_progress <= progress <= 1.0 / check.min_progress:
+        out.append(f"travelled {progress:.2f} of the path (outside {check.min_progress:g} .. "
+                   f"{1.0 / check.min_progress:g})")
+    return out
+
+
+FAILED_MARK = " [FAILED CHECK]"
+"""Appended to the title of a character whose new style failed the closed-loop check at every
+rate, when it is used anyway (``--allow-failed``): every table names it so."""
+
+
+def failed_check(info: dict, name: str) -> str | None:
+    """``None`` when the new style ``name`` passed the closed-loop check at its chosen rate, else one
+    line naming it and what failed. ``info``: its entry of a sweep's ``chosen_rates.json`` (the 2018
+    sweep's ``passed_check``, the 2022 clip sweep's ``check_passed``; ``failed``: the criteria)."""
+    if info.get("passed_check", info.get("check_passed", True)):
+        return None
+    what = "; ".join(info.get("failed", [])) or "see the sweep's results"
+    return f"{name} failed the closed-loop check at every rate (at its chosen rate {info['rate']:g}: {what})"
+
+
 def choose_rates(validation_loss_SxR: np.ndarray, passed_SxR: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Per style the index of the chosen rate and whether it passed the closed-loop check: the

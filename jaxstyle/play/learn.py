@@ -25,6 +25,7 @@ from typing import Callable, Sequence
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.mason2018 import pipeline
 from jaxstyle.motion.bvh import read_bvh_names
+from jaxstyle.output.check import FAILED_MARK
 from jaxstyle.play.models import PlayError, PlayModel, Style, learned_root
 from jaxstyle.train.defaults import DEFAULT_RATES, LEARN_EPOCHS
 
@@ -121,8 +122,9 @@ class Learner:
     def __init__(self, model: PlayModel, on_done: Callable[[Style], None], *,
                  on_fail: Callable[[str], None] = lambda _: None, epochs: int = LEARN_EPOCHS,
                  rates: Sequence[float] = DEFAULT_RATES, clip_range: tuple[float, float] | None = None,
-                 mirror: bool = True):
+                 mirror: bool = True, allow_failed: bool = False):
         self.model, self.on_done, self.on_fail = model, on_done, on_fail
+        self.allow_failed = bool(allow_failed)
         self.epochs, self.rates, self.clip_range, self.mirror = int(epochs), tuple(rates), clip_range, mirror
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -162,13 +164,19 @@ class Learner:
             self._set_stage(STAGES[1])
             result, _, _ = pipeline.run_sweep(self.model.base, specs, learned_root(self.model.run_dir) / name,
                                               rates=self.rates, epochs=self.epochs, progress=True)
-            style = Style(name, "learned", float(result.chosen_rate(name)), result.adapter(name))
+            passed = bool(result.chosen_passed[result.styles.index(name)])
+            if not passed and not self.allow_failed:
+                self._fail(f"{name} failed the closed-loop check at every rate ({'; '.join(result.failed(name))}): "
+                           "not added (jaxstyle play --allow-failed adds it anyway)")
+                return
+            kind = "learned" if passed else "learned" + FAILED_MARK
+            style = Style(name, kind, float(result.chosen_rate(name)), result.adapter(name))
             with self._lock:
                 self.seconds = time.perf_counter() - t0
-                passed = bool(result.chosen_passed[result.styles.index(name)])
                 self.state, self.stage = "done", STAGES[3]
                 self.message = (f"learned {name} in {self.seconds:.0f} s: rate {style.rate:g} chosen"
-                                + ("" if passed else " (its closed-loop check failed: it may walk poorly)"))
+                                + ("" if passed else " (it failed the closed-loop check at every rate: used because "
+                                                     "of --allow-failed)"))
             self.on_done(style)
         except (JaxstyleError, ValueError, KeyError, OSError) as e:
             self._fail(f"{name}: {_one_line(e)}")

@@ -40,6 +40,7 @@ from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline, selection
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn
+from jaxstyle.output.check import FAILED_MARK, failed_check
 
 MAX_BLEND = 3
 PLAY_DIR = "play"  # under the run folder: learned styles, uploads, recordings
@@ -82,6 +83,7 @@ class Playable:
     units_per_meter: float
     speed: float
     run_dir: Path
+    refused: tuple[str, ...] = ()
 
     def character_model(self, blend_bias: float = 1.5):
         raise NotImplementedError
@@ -196,14 +198,26 @@ class LPNPlayModel(Playable):
 AnyPlayModel = PlayModel | LPNPlayModel
 
 
-def _sweep_styles(directory: Path, base: pipeline.Base, kind: str) -> list[Style]:
-    """The chosen adapters of a sweep report written by :func:`jaxstyle.mason2018.pipeline.run_sweep`."""
+def _sweep_styles(directory: Path, base: pipeline.Base, kind: str, allow_failed: bool = False
+                  ) -> tuple[list[Style], list[str]]:
+    """The chosen adapters of a sweep report written by :func:`jaxstyle.mason2018.pipeline.run_sweep`,
+    and one line per set left out because it failed the closed-loop check at every rate
+    (:func:`jaxstyle.output.check.failed_check`; kept, marked in its label, with ``allow_failed``)."""
     chosen_path = directory / "chosen_rates.json"
     if not chosen_path.is_file():
-        return []
+        return [], []
     chosen = selection.read_chosen(chosen_path)
-    return [Style(name, kind, float(info["rate"]), selection.load_adapter(directory / "adapters" / name, base.model))
-            for name, info in chosen.items() if (directory / "adapters" / name).is_dir()]
+    styles, refused = [], []
+    for name, info in chosen.items():
+        if not (directory / "adapters" / name).is_dir():
+            continue
+        failed = failed_check(chosen[name], name)
+        if failed and not allow_failed:
+            refused.append(f"{failed}: not offered (jaxstyle play --allow-failed offers it)")
+            continue
+        adapter = selection.load_adapter(directory / "adapters" / name, base.model)
+        styles.append(Style(name, kind + (FAILED_MARK if failed else ""), float(info["rate"]), adapter))
+    return styles, refused
 
 
 def learned_root(run_dir: str | Path) -> Path:
@@ -211,26 +225,29 @@ def learned_root(run_dir: str | Path) -> Path:
     return Path(run_dir) / PLAY_DIR / "styles"
 
 
-def load_model(run_dir: str | Path, *, progress: bool = False) -> PlayModel:
+def load_model(run_dir: str | Path, *, progress: bool = False, allow_failed: bool = False) -> PlayModel:
     """The base of ``RUN/base``, its base styles, the few-shot styles of ``RUN/sweep`` (their chosen
-    rates) and the styles learned in earlier sessions (``RUN/play/styles``). A folder without a
-    base raises :class:`jaxstyle.data.folders.PipelineError` naming it."""
+    rates) and the styles learned in earlier sessions (``RUN/play/styles``); a set that failed the
+    closed-loop check at every rate is left out, one line in ``refused`` saying so, unless
+    ``allow_failed``. A folder without a base raises :class:`jaxstyle.data.folders.PipelineError`
+    naming it."""
     run_dir = Path(run_dir)
     base = pipeline.load_base(run_dir / "base", cache=run_dir / "cache", progress=progress)
     styles: dict[str, Style] = {}
     for s, name in enumerate(base.dataset.styles):
         styles[name] = Style(name, "base", None, jax.tree.map(lambda v, s=s: v[s], base.adapters))
-    for style in _sweep_styles(run_dir / "sweep", base, "few-shot"):
-        styles[style.name] = style
+    found, refused = _sweep_styles(run_dir / "sweep", base, "few-shot", allow_failed)
     root = learned_root(run_dir)
     if root.is_dir():
         for d in sorted(p for p in root.iterdir() if p.is_dir()):
-            for style in _sweep_styles(d, base, "learned"):
-                styles[style.name] = style
+            more, left_out = _sweep_styles(d, base, "learned", allow_failed)
+            found, refused = found + more, refused + left_out
+    for style in found:
+        styles[style.name] = style
     upm = estimate_units_per_meter(base.skeleton)
     rows = style_rows(base.dataset, base.dataset.styles[0])
     speed = PFNNModel.own_speed(base.dataset, rows, upm, base.skeleton.fps)
-    return PlayModel(base, styles=styles, units_per_meter=upm, speed=speed, run_dir=run_dir)
+    return PlayModel(base, styles=styles, units_per_meter=upm, speed=speed, run_dir=run_dir, refused=tuple(refused))
 
 
 def available_models(run_dir: str | Path) -> dict[str, str]:
@@ -286,15 +303,17 @@ def lpn_play_model(loaded: synthesis2022.Loaded, run_dir: str | Path | None = No
                         run_dir=Path(run_dir if run_dir is not None else loaded.directory.parent))
 
 
-def load_any(run_dir: str | Path, key: str | None = None, *, progress: bool = False) -> AnyPlayModel:
+def load_any(run_dir: str | Path, key: str | None = None, *, progress: bool = False,
+             allow_failed: bool = False) -> AnyPlayModel:
     """The model ``key`` of the run folder (:func:`available_models`; default: the 2018 model when
-    there is one, else the 2022 one). A folder without it raises one line naming what it has."""
+    there is one, else the 2022 one; ``allow_failed`` as :func:`load_model`). A folder without it
+    raises one line naming what it has."""
     run_dir = Path(run_dir)
     have = available_models(run_dir)
     if key is None:
         key = next(iter(have), PFNN)
     if key == PFNN:
-        return load_model(run_dir, progress=progress)
+        return load_model(run_dir, progress=progress, allow_failed=allow_failed)
     if key not in have:
         raise PlayError(f"{run_dir} has no trained {key} model (it has: {', '.join(have) or 'none'}); train one with "
                         f"`jaxstyle lpn --run {run_dir}` or `jaxstyle demo --model {key} --run {run_dir}`")

@@ -99,8 +99,9 @@ class PlayServer(SceneView):
                  verbose: bool = False, model: str | None = None,
                  log: Callable[[str], None] = lambda _: None, token: str | None = None,
                  data_dirs: tuple[str | Path, ...] = (), runs_root: str | Path | None = None,
-                 max_upload_bytes: int = MAX_UPLOAD_BYTES):
+                 max_upload_bytes: int = MAX_UPLOAD_BYTES, allow_failed: bool = False):
         self.run_dir = Path(run_dir)
+        self.allow_failed = bool(allow_failed)  # offer and keep styles that failed the closed-loop check
         self.token = token
         self.data_dirs = tuple(Path(d) for d in data_dirs)
         self.runs_root = Path(runs_root) if runs_root is not None else self.run_dir.resolve().parent
@@ -194,7 +195,7 @@ class PlayServer(SceneView):
         try:
             if model is None:
                 cached = self._models.get((str(run_dir), key))
-                model = cached or load_any(run_dir, key)
+                model = cached or load_any(run_dir, key, allow_failed=self.allow_failed)
             session = Session(model, record_seconds=max(self.record_seconds, 30.0))
             session.step()  # compiles the step
         except (JaxstyleError, ValueError, KeyError, OSError) as e:
@@ -220,6 +221,9 @@ class PlayServer(SceneView):
         self.message = ""
         self._gui["message"].content = ""
         self.log(f"loaded {model.title} of {run_dir}: styles {', '.join(model.styles)}")
+        for line in model.refused:  # styles left out because their closed-loop check failed
+            self._note(line)
+            self.log(line)
         return True
 
     def _learner_for(self, run_dir: Path) -> learn.Learner | None:
@@ -234,7 +238,8 @@ class PlayServer(SceneView):
         if id(model) not in self._learners:
             self._learners[id(model)] = (model, learn.Learner(
                 model, lambda style, m=model: self._learned(style, m), on_fail=self._learn_failed,
-                epochs=self.learn_epochs, **({"rates": self.learn_rates} if self.learn_rates else {})))
+                epochs=self.learn_epochs, allow_failed=self.allow_failed,
+                **({"rates": self.learn_rates} if self.learn_rates else {})))
         return self._learners[id(model)][1]
 
     def load_model_key(self, key: str) -> bool:
