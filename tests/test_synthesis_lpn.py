@@ -154,3 +154,26 @@ def test_cli_synthesize_model_lpn_film(run_dir, capsys):
     assert "no trained 2022 model in" in err and len(err.strip().splitlines()) == 1
     assert main(args + ["--blend-weights", "0.5", "0.6"]) == 1
     assert "barycentric" in capsys.readouterr().err
+
+
+def test_a_new_style_that_failed_every_check_is_refused_unless_allowed(run_dir, tmp_path):
+    """A new style marked in chosen_rates.json as failing the closed-loop check at every rate (as
+    the clip sweep writes it) is refused with one line naming it and the figure; allowed, it is marked."""
+    import json
+    import shutil
+
+    run, _, _, _ = run_dir
+    folder = tmp_path / "lpn"
+    shutil.copytree(run / "lpn", folder)
+    path = folder / "chosen_rates.json"
+    chosen = json.loads(path.read_text())
+    chosen["Limping"].update(check_passed=False, failed=["bone error 0.412 > 0.1"])
+    path.write_text(json.dumps(chosen))
+    loaded = synthesis2022.load_model(folder, cache=run / "cache")
+    with pytest.raises(folders.PipelineError) as e:
+        synthesis2022.characters(loaded, new_styles=["Limping"])
+    line = str(e.value)
+    assert "\n" not in line and "new style Limping failed the closed-loop check at every rate" in line
+    assert "bone error 0.412 > 0.1" in line and "--allow-failed" in line
+    (char,) = synthesis2022.characters(loaded, new_styles=["Limping"], allow_failed=True)
+    assert char.title.endswith("[FAILED CHECK]")
