@@ -46,7 +46,8 @@ from jaxstyle.data import datasets
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
-from jaxstyle.output import drive, footlock
+from jaxstyle.motion.kinematics import global_positions
+from jaxstyle.output import drive, footlock, style
 from jaxstyle.output.drive import Character
 from jaxstyle.output.measure import SLIDING_SOURCES, capture_figures, exported, measure
 
@@ -101,6 +102,8 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
     upm = estimate_units_per_meter(skeleton)
     out = jax.tree.map(np.asarray, rollouts)
     floor = footlock.skeleton_floor(skeleton)  # one skeleton for the whole batch
+    captures = [CaptureStyle.of(s.dataset, s.style) for s in subjects]
+    neutral = neutral_capture(subjects, captures)
     results, drawn = [], {}
     for k, (i, p) in enumerate(pairs):
         one = jax.tree.map(lambda v, k=k: v[k], out)
@@ -108,9 +111,15 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
         e = exported(one, skeleton, floor)
         drawn[(s.title, p)] = (e.net if e.locked is None else e.locked, signals[k].positions)
         row = measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
-        results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row})
-    for s in subjects:
-        results.append(capture_row(s))
+        shown = style.style_stats(drawn[(s.title, p)][0], skeleton, signals[k].fps, units_per_meter=upm)
+        fidelity = style.style_distance(shown, captures[i].stats)
+        # Neutral is the reference itself: whether it "shows" has no meaning (blank)
+        fidelity["style_shows"] = (None if captures[i] is neutral
+                                   else style.shows(fidelity["style_distance"], captures[i].to(neutral)))
+        results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row,
+                        **fidelity})
+    for s, c in zip(subjects, captures, strict=True):
+        results.append(capture_row(s, c, neutral))
     return Measured(results, drawn)
 
 
@@ -136,17 +145,50 @@ def capture_clip(subject: Subject, fps: float = 60.0) -> Motion:
     return datasets.load_clip(capture_spec(subject.dataset, subject.style), fps=fps)
 
 
-def capture_spec(dataset: datasets.Dataset, style: str):
+def capture_spec(dataset: datasets.Dataset, name: str):
     """The clip spec of a style's capture row (:func:`capture_clip`)."""
-    return dataset.specs[int(dataset.clip[style_rows(dataset, style)[0]])]
+    return dataset.specs[int(dataset.clip[style_rows(dataset, name)[0]])]
 
 
-def capture_row(subject: Subject) -> dict:
+class CaptureStyle(NamedTuple):
+    """A style's capture (:func:`capture_spec`) loaded once: its ``spec``, the ``clip``, its
+    :class:`jaxstyle.output.style.StyleStats` and the style distance between its two halves
+    (:func:`jaxstyle.output.style.halves_distance`)."""
+
+    spec: Any
+    clip: Motion
+    stats: style.StyleStats
+    halves: float
+
+    @classmethod
+    def of(cls, dataset: datasets.Dataset, name: str) -> CaptureStyle:
+        spec = capture_spec(dataset, name)
+        clip = datasets.load_clip(spec, fps=60.0)
+        pos = global_positions(clip)
+        return cls(spec, clip, style.style_stats(pos, clip, clip.fps), style.halves_distance(pos, clip, clip.fps))
+
+    def to(self, other: CaptureStyle | None) -> float:
+        """The style distance from this capture to ``other``'s (NaN without one)."""
+        return float("nan") if other is None else style.style_distance(self.stats, other.stats)["style_distance"]
+
+
+def neutral_capture(subjects: Sequence[Subject], captures: Sequence[CaptureStyle]) -> CaptureStyle | None:
+    """The capture of the subjects' Neutral style (a dataset style ``Neutral`` or ``Neutral_<GAIT>``),
+    the reference a style's distance is held against; ``None`` when no subject is Neutral."""
+    for s, c in zip(subjects, captures, strict=True):
+        if s.style == "Neutral" or s.style.startswith("Neutral_"):
+            return c
+    return None
+
+
+def capture_row(subject: Subject, capture: CaptureStyle | None = None, neutral: CaptureStyle | None = None) -> dict:
     """The same figures for the style's capture (forward kinematics of the BVH; no path), naming
-    the file in ``capture_file``."""
-    spec = capture_spec(subject.dataset, subject.style)
+    the file in ``capture_file``, with the style distance between its two halves
+    (``style_halves_distance``) and to Neutral's capture (``style_to_neutral``)."""
+    capture = capture or CaptureStyle.of(subject.dataset, subject.style)
     return {"model": subject.model, "style": subject.title, "kind": subject.kind, "path": "capture",
-            "capture_file": Path(spec.path).name, **capture_figures(datasets.load_clip(spec, fps=60.0))}
+            "capture_file": Path(capture.spec.path).name, **capture_figures(capture.clip),
+            "style_halves_distance": capture.halves, "style_to_neutral": capture.to(neutral)}
 
 
 def _model(r: dict) -> str:
@@ -164,6 +206,11 @@ LOCK_TARGETS = ("locked skating <= capture + 0.03", "foot offset <= 0.15 m", "fo
 """The foot-locking targets :func:`targets` checks (their names), beside :data:`PATH_TARGETS`."""
 
 
+STYLE_TARGET = "style distance < half capture's to Neutral"
+"""The style-fidelity target (:mod:`jaxstyle.output.style`): a character's distance to its own
+capture below half its capture's distance to Neutral's capture."""
+
+
 def targets(rows: list[dict]) -> list[dict]:
     """One entry per (target, character, path): ``{"target", "model", "style", "path", "value",
     "limit", "met"}``. Against the style's capture: raw skating (1.5x for base styles, 2x for
@@ -172,7 +219,7 @@ def targets(rows: list[dict]) -> list[dict]:
     after locking at most 1.5x; the value of the two "within" targets is the difference from the
     capture); on every row: no foot moved more than 0.15 m by the lock, none more than 1 cm below
     the floor; final path error <= 0.3 m on straight, circle and zigzag, stop within 0.5 s, BVH bone
-    error 0."""
+    error 0; and for every style but Neutral :data:`STYLE_TARGET` (the style shows)."""
     cap = _capture_of(rows)
     out = []
 
@@ -194,6 +241,9 @@ def targets(rows: list[dict]) -> list[dict]:
             add(LOCK_TARGETS[3], r, abs(steps - ref) / ref if ref > 0 else nan, 0.25)
             add(LOCK_TARGETS[4], r, abs(r.get("stance_fraction", nan) - c.get("stance_fraction", nan)), 0.15)
             add(LOCK_TARGETS[5], r, r["ankle_jerk_locked_m_s3"], 1.5 * c["ankle_jerk_m_s3"])
+            to_neutral = c.get("style_to_neutral", nan)
+            if to_neutral is not None and np.isfinite(to_neutral) and to_neutral > 0:  # not Neutral itself
+                add(STYLE_TARGET, r, r.get("style_distance", nan), 0.5 * to_neutral)
         add(LOCK_TARGETS[1], r, r.get("ik_foot_offset_max_m", nan), 0.15)
         add(LOCK_TARGETS[2], r, r.get("foot_below_floor_m", nan), 0.01)
         if r["path"] in FOLLOW_PATHS:
@@ -243,8 +293,8 @@ def table(rows: list[dict]) -> list[str]:
     head = ("| model | style | path | skating m/s net / BVH / locked | steps/s locked (BVH) | stance | "
             "slide/contact m | foot offset m | below floor m | bone error net max / BVH | "
             "path error mean / final m (final %) | heading deg | stop s | jitter m/s^3 | "
-            "ankle jerk net / locked m/s^3 |")
-    lines = [head, "|" + "---|" * 15]
+            "ankle jerk net / locked m/s^3 | style distance m (shows) / capture: halves, to Neutral |")
+    lines = [head, "|" + "---|" * 16]
     order = {m: i for i, m in enumerate(dict.fromkeys(_model(r) for r in rows))}
     for r in sorted(rows, key=lambda r: (order[_model(r)], r["style"], r["path"] != "capture")):
         g = r.get
@@ -259,8 +309,19 @@ def table(rows: list[dict]) -> list[str]:
             f" | {_f(g('path_error_mean_m'))} / "
             f"{_f(g('path_error_final_m'))} ({_f(g('path_error_final_pct'), 1)}%) | "
             f"{_f(g('heading_error_deg'), 1)} | {_f(g('stop_time_s'))} | {_f(g('jitter_m_s3'), 0)} | "
-            f"{_f(g('ankle_jerk_m_s3'), 0)} / {_f(g('ankle_jerk_locked_m_s3'), 0)} |")
+            f"{_f(g('ankle_jerk_m_s3'), 0)} / {_f(g('ankle_jerk_locked_m_s3'), 0)} | {_style_cell(r)} |")
     return lines
+
+
+def _style_cell(r: dict) -> str:
+    """The style-distance cell of :func:`table`: a character's distance to its capture and whether its
+    style shows; a capture's distance between its halves and to Neutral's capture."""
+    g = r.get
+    if r["path"] == "capture":
+        return f"{_f(g('style_halves_distance', math.nan))}, {_f(g('style_to_neutral', math.nan))}"
+    shows = g("style_shows")
+    mark = "" if shows is None or shows == "" else (" (shows)" if shows in (True, "True") else " (no)")
+    return f"{_f(g('style_distance', math.nan))}{mark}"
 
 
 def write_csv(rows: list[dict], path: str | os.PathLike) -> Path:
