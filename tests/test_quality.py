@@ -25,6 +25,7 @@ from jaxstyle.mason2022 import pipeline
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import style_models
 from jaxstyle.output import footlock, metrics, quality, synthesis
+from jaxstyle.output import style as style_lib
 from jaxstyle.output.synthesis import EXPORTED_FIGURES
 
 SECONDS = 3.5  # stop_and_go: 2 s walk, then the stop command; 1.5 s to stop
@@ -103,6 +104,13 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
         for k, v in want.items():  # the BVH file holds 6 decimals
             np.testing.assert_allclose(row[k], v, rtol=2e-3, atol=2e-4, equal_nan=True, err_msg=f"{p}: {k}")
         assert row["bone_error_bvh_max"] < 1e-5 < row["bone_error_max"]
+        # the style figures: of the BVH's skeleton against the style's capture, by the style module
+        cap = datasets.load_clip(quality.capture_spec(loaded.data.base, style), fps=60.0)
+        shown = style_lib.style_stats(fixed, skeleton, fps)
+        captured = style_lib.style_stats(js.global_positions(cap), cap, cap.fps)
+        for k, v in style_lib.style_distance(shown, captured).items():
+            np.testing.assert_allclose(row[k], v, rtol=2e-3, atol=2e-4, equal_nan=True, err_msg=f"{p}: {k}")
+        np.testing.assert_allclose(row["wrist_range_ratio"], shown.wrist_range_m / captured.wrist_range_m, rtol=2e-3)
         # `jaxstyle synthesize` reports the exported skeleton's figures too, by the same function
         srow = next(r for r in synth.rows if (r["style"], r["path"]) == (style, p))
         for k in EXPORTED_FIGURES:

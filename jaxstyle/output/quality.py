@@ -113,6 +113,8 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
         row = measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         shown = style.style_stats(drawn[(s.title, p)][0], skeleton, signals[k].fps, units_per_meter=upm)
         fidelity = style.style_distance(shown, captures[i].stats)
+        cap_range = captures[i].stats.wrist_range_m  # how much of the capture's arm movement is kept
+        fidelity["wrist_range_ratio"] = shown.wrist_range_m / cap_range if cap_range > 0 else float("nan")
         # Neutral is the reference itself: whether it "shows" has no meaning (blank)
         fidelity["style_shows"] = (None if captures[i] is neutral
                                    else style.shows(fidelity["style_distance"], captures[i].to(neutral)))

@@ -16,11 +16,12 @@ and of its gait (:class:`StyleStats`), and two motions are compared group by gro
   head), the arm styles' signature;
 * ``gait``: the difference in stride length (ground distance per two steps, at the speed walked).
 
-``style_distance`` is their sum. A style *shows* when the distance of a character to its own
-capture is below half the distance of that capture to Neutral's (:func:`shows`); the distance
-between the two halves of one capture (:func:`halves_distance`) is the floor a capture itself
-sets. Cadence (steps per second) is reported beside them, not summed (at a matched speed a
-cadence error is a stride error).
+``style_distance`` is their sum. The quality benchmark also reports ``wrist_range_ratio``, the
+character's wrist range over its capture's (how much of an arm style's movement is kept). A style
+*shows* when the distance of a character to its own capture is below half the distance of that
+capture to Neutral's (:func:`shows`); the distance between the two halves of one capture
+(:func:`halves_distance`) is the floor a capture itself sets. Cadence (steps per second) is reported
+beside them, not summed (at a matched speed a cadence error is a stride error).
 """
 
 from __future__ import annotations
