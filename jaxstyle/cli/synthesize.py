@@ -101,7 +101,7 @@ def synthesize_lpn_and_report(run: Run, args, loaded, base_styles, sets, out: Pa
 
     t0 = time.perf_counter()
     chars = synthesis2022.characters(loaded, styles=base_styles, new_styles=sets, blend=blend,
-                                     allow_failed=getattr(args, "allow_failed", False))
+                                     allow_failed=args.allow_failed)
     result = synthesis.synthesize(loaded.character_model(), chars, loaded.data.skeleton, out,
                                   synthesis_options(args, contact_sheet=True))
     run.say(f"synthesis with {loaded.model.name} ({loaded.epochs} epochs, {loaded.directory}): "

@@ -276,6 +276,12 @@ def trajectory_input(hist_xz: jax.Array, hist_yaw: jax.Array, future_4xF: jax.Ar
     return jnp.concatenate([px, fx, pz, fz, pdx, fdx, pdz, fdz])
 
 
+def stack_trees(items):
+    """Pytrees of the same structure stacked leaf by leaf on a new leading axis (NumPy or JAX
+    leaves: the batched rollouts' states, controls and style conditionings)."""
+    return jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *items)
+
+
 def normaliser_arrays(norm: Normaliser | tuple) -> tuple[jax.Array, jax.Array]:
     """``(mean, std)`` as float32 arrays, from a :class:`Normaliser` or a ``(mean, std)`` pair."""
     mean, std = (norm.mean, norm.std) if isinstance(norm, Normaliser) else norm

@@ -381,8 +381,8 @@ class StyleNetModel:
         return float(np.median(np.hypot(y[:, 0], y[:, FUTURE_SAMPLES])) * fps / units_per_meter)
 
     def stack_styles(self, styles):
-        """Runtime styles stacked per character (one kind and shape)."""
-        return jax.tree.map(lambda *v: jnp.stack([jnp.asarray(x) for x in v]), *styles)
+        """Runtime styles stacked per character (one kind and shape, :func:`jaxstyle.control.loop.stack_trees`)."""
+        return loop.stack_trees(styles)
 
     def blend_styles(self, styles, weights):
         """The blend of runtime styles with barycentric ``weights`` (section 4.4:

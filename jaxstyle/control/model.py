@@ -101,7 +101,7 @@ def rollout(model: CharacterModel, style, state, controls: Controls):
 def rollout_batch(model: CharacterModel, styles, states, controls: Controls, *, shared_style: bool = False):
     """:func:`rollout` for ``C`` characters at once (``vmap`` over characters,
     :func:`jaxstyle.control.loop.scan_characters`): ``states`` and ``controls`` stacked on a leading
-    axis (:func:`stack_trees`), ``styles`` too (:meth:`CharacterModel.stack_styles`), or one
+    axis (:func:`jaxstyle.control.loop.stack_trees`), ``styles`` too (:meth:`CharacterModel.stack_styles`), or one
     conditioning for all with ``shared_style`` (e.g. ``None``, the 2018 base without an adapter).
     The model's weights are shared. Every field of the result has a leading ``C`` axis."""
     return loop.scan_characters(model.step, styles, states, controls, shared_style=shared_style)
@@ -124,9 +124,3 @@ def batched_step_fn(model: CharacterModel):
     displayed frame for several characters. The weights are compiled in as constants
     (:func:`step_fn`)."""
     return jax.jit(jax.vmap(model.step))
-
-
-def stack_trees(items: Sequence):
-    """Pytrees of the same structure stacked leaf by leaf on a new leading axis (NumPy or JAX
-    leaves: the batched rollouts' states, controls and style conditionings)."""
-    return jax.tree.map(lambda *v: jax.numpy.stack([jax.numpy.asarray(x) for x in v]), *items)

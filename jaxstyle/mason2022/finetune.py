@@ -195,10 +195,7 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
             states.append(state)
             controls.append(control)
 
-    def stack(items):
-        return jax.tree.map(lambda *a: np.stack(a), *items)
-
-    out = rollout_batch(character, np.stack(styles), stack(states), stack(controls))
+    out = rollout_batch(character, np.stack(styles), loop.stack_trees(states), loop.stack_trees(controls))
     positions = np.asarray(out.positions)[:, :, :num_joints]
     origin = np.asarray(out.origin)
     finite_c = np.isfinite(positions).all(axis=(1, 2, 3)) & np.isfinite(np.asarray(out.outputs)).all(axis=(1, 2))

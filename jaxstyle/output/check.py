@@ -43,26 +43,21 @@ def passes_check(out: dict[str, np.ndarray], real_contact_fraction_S, base_skati
     ``out`` (``(S, R)`` arrays of :func:`rollout_measures`) and per style ``(S,)``: the capture's
     share of frames with a foot on the floor, the skating of the model before fine-tuning on the
     same path (NaN where its rollout diverged: not judged against it) and the style's speed (m/s;
-    a style that stands still is not held to the distance)."""
-    base_skating = np.asarray(base_skating_m_s_S, np.float64)[:, None]
-    speed = np.asarray(speed_m_s_S, np.float64)[:, None]
-    contact = np.asarray(real_contact_fraction_S, np.float64)[:, None]
-    skating, progress = out["skating_m_s"], out["progress"]
-    ok = np.asarray(out["finite"]).astype(bool)
-    with np.errstate(invalid="ignore"):
-        ok &= out["bone_error"] <= check.max_bone_error
-        ok &= out["contact_fraction"] >= check.min_contact_ratio * contact
-        ok &= ~np.isfinite(base_skating) | np.isnan(skating) | (
-            skating <= check.max_skating_ratio * base_skating + check.skating_slack_m_s)
-        ok &= (speed < 0.1) | ((progress >= check.min_progress) & (progress <= 1.0 / check.min_progress))
-    return ok
+    a style that stands still is not held to the distance). A pair passes when
+    :func:`failed_criteria`, the one statement of the rule, finds nothing."""
+    fields = ("finite", "bone_error", "contact_fraction", "skating_m_s", "progress")
+    num_styles, num_rates = np.shape(out["finite"])
+    return np.array([[not failed_criteria({k: float(out[k][s, r]) for k in fields}, float(real_contact_fraction_S[s]),
+                                          float(base_skating_m_s_S[s]), float(speed_m_s_S[s]), check)
+                      for r in range(num_rates)] for s in range(num_styles)], dtype=bool).reshape(num_styles, num_rates)
 
 
 def failed_criteria(measures: dict[str, float], real_contact_fraction: float, base_skating_m_s: float,
                     speed_m_s: float, check: RolloutCheck) -> list[str]:
-    """The criteria of :func:`passes_check` that one pair fails, each as one phrase with its figure
-    and limit (``[]`` when it passes): ``measures`` are one pair's figures of
-    :func:`rollout_measures`, the others as in :func:`passes_check`."""
+    """The criteria of the :class:`RolloutCheck` that one pair fails, each as one phrase with its
+    figure and limit (``[]`` when it passes; :func:`passes_check` applies it to every pair):
+    ``measures`` are one pair's figures of :func:`rollout_measures`, the others as in
+    :func:`passes_check` (a NaN figure fails its criterion; a NaN base skating is not judged against)."""
     if not measures.get("finite", 0.0):
         return ["the rollout did not stay finite"]
     out = []
@@ -77,7 +72,7 @@ def failed_criteria(measures: dict[str, float], real_contact_fraction: float, ba
     if np.isfinite(base_skating_m_s) and not np.isnan(skating) and not skating <= limit:
         out.append(f"foot skating {skating:.2f} m/s > {limit:.2f} ({check.max_skating_ratio:g} x the base's "
                    f"{base_skating_m_s:.2f} + {check.skating_slack_m_s:g})")
-    if speed_m_s >= 0.1 and not check.min_progress <= progress <= 1.0 / check.min_progress:
+    if not speed_m_s < 0.1 and not check.min_progress <= progress <= 1.0 / check.min_progress:
         out.append(f"travelled {progress:.2f} of the path (outside {check.min_progress:g} .. "
                    f"{1.0 / check.min_progress:g})")
     return out

@@ -19,7 +19,8 @@ import jax
 import numpy as np
 
 from jaxstyle.control import loop, paths
-from jaxstyle.control.model import CharacterModel, rollout_batch, stack_trees
+from jaxstyle.control.loop import stack_trees
+from jaxstyle.control.model import CharacterModel, rollout_batch
 from jaxstyle.data import datasets
 from jaxstyle.data.datasets import style_rows
 

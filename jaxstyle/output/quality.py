@@ -111,7 +111,9 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
         e = exported(one, skeleton, floor)
         drawn[(s.title, p)] = (e.net if e.locked is None else e.locked, signals[k].positions)
         row = measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
-        shown = style.style_stats(drawn[(s.title, p)][0], skeleton, signals[k].fps, units_per_meter=upm)
+        # the steps of the locked skeleton (what is drawn) are measure's, not counted again
+        shown = style.style_stats(drawn[(s.title, p)][0], skeleton, signals[k].fps, units_per_meter=upm,
+                                  cadence=row.get("steps_per_s") if e.locked is not None else None)
         fidelity = style.style_distance(shown, captures[i].stats)
         cap_range = captures[i].stats.wrist_range_m  # how much of the capture's arm movement is kept
         fidelity["wrist_range_ratio"] = shown.wrist_range_m / cap_range if cap_range > 0 else float("nan")

@@ -68,10 +68,12 @@ def _head(names) -> int:
 
 
 def style_stats(positions_TxJx3: np.ndarray, skeleton: Motion, fps: float, *,
-                units_per_meter: float | None = None) -> StyleStats:
+                units_per_meter: float | None = None, cadence: float | None = None) -> StyleStats:
     """:class:`StyleStats` of global joint positions ``(T, J, 3)`` (file units) on ``skeleton``
-    (its joint names give the head, the wrists and the feet). NaN statistics for fewer than
-    :data:`MIN_FRAMES` frames or positions that are not finite."""
+    (its joint names give the head, the wrists and the feet). ``cadence``: the steps per second of
+    these same positions when already measured (:func:`jaxstyle.output.metrics.step_figures`),
+    measured here otherwise. NaN statistics for fewer than :data:`MIN_FRAMES` frames or positions
+    that are not finite."""
     pos = np.asarray(positions_TxJx3, dtype=np.float64)[:, :skeleton.num_joints]
     upm = float(units_per_meter or estimate_units_per_meter(skeleton))
     nan = float("nan")
@@ -85,7 +87,9 @@ def style_stats(positions_TxJx3: np.ndarray, skeleton: Motion, fps: float, *,
     hands = [skeleton.names.index(n) for n in hand_names]
     below = local[:, head, UP_AXIS][:, None] - local[:, hands, UP_AXIS]  # (T, 2)
     lo, hi = np.percentile(below, [5, 95], axis=0)
-    cadence = float(metrics.step_figures(pos, skeleton, fps).steps_per_s)
+    if cadence is None:
+        cadence = metrics.step_figures(pos, skeleton, fps).steps_per_s
+    cadence = float(cadence)
     ground = np.linalg.norm(np.diff(frames.origin[:, [0, 2]], axis=0), axis=1).sum() / upm
     seconds = (len(pos) - 1) / fps
     stride = 2.0 * ground / seconds / cadence if cadence > 0 else nan

@@ -34,7 +34,7 @@ import numpy as np
 
 from jaxstyle.control import loop, lpn_controller
 from jaxstyle.control.controller import Rollout, RolloutState
-from jaxstyle.control.model import stack_trees
+from jaxstyle.control.loop import stack_trees
 from jaxstyle.data.pfnn_features import contact_columns
 from jaxstyle.output import footlock
 from jaxstyle.play import frame as live
