@@ -25,6 +25,7 @@ from jaxstyle.mason2022 import finetune, pipeline, report
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.output import check as check_lib
+from jaxstyle.train.defaults import PHASE_FLOOR
 
 TINY = {"hidden": 8, "generator_hidden": 16, "filters": 4}
 
@@ -91,8 +92,9 @@ def test_film_sweep_from_a_user_clip_chooses_a_rate_and_writes_its_generator(fol
     fps = data.skeleton.fps
     y = data.new.outputs[rows]
     speed = float(np.median(np.hypot(y[:, 0], y[:, 6]))) * fps
+    floor = PHASE_FLOOR * lpn_controller.capture_phase_rate(data.new, "Limping_FW")  # the default runtime's
     state = lpn_controller.initial_state(data.new.inputs[start], data.new.phases[start],
-                                         len(bone_points(data.skeleton)[0]))
+                                         len(bone_points(data.skeleton)[0]), phase_floor=floor)
     controls = loop.turning_path(int(round(5 * fps)), speed, np.deg2rad(45.0), fps)
     alone = rollout(StyleNetModel.create(m.params, m.config, data.base.normalisers()), vec, state, controls)
     origin = np.asarray(alone.origin)

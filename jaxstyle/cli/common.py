@@ -257,6 +257,9 @@ SWEEP_RATES = LazyDefault("jaxstyle.train.defaults", "DEFAULT_RATES")
 LEARN_EPOCHS = LazyDefault("jaxstyle.train.defaults", "LEARN_EPOCHS")
 """Fine-tuning epochs of a style learned live (the library's default)."""
 
+PHASE_FLOOR = LazyDefault("jaxstyle.train.defaults", "PHASE_FLOOR")
+"""The 2022 runtime's floor on the local phases' advance (the library's default)."""
+
 
 def add_common(parser: argparse.ArgumentParser, run_default: Path | None = DEFAULT_RUN) -> None:
     if run_default is not None:
@@ -399,6 +402,10 @@ def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds:
     p.add_argument("--allow-failed", action="store_true",
                    help="drive few-shot sets whose closed-loop check failed at every rate (marked [FAILED CHECK] in "
                         "the tables); by default such a set is refused with one line")
+    p.add_argument("--phase-floor", type=non_negative, default=PHASE_FLOOR, metavar="F",
+                   help="2022 models: each limb's local phase advances at least F times its style's capture rate "
+                        "per frame (0: the paper's runtime, whose closed loop can stall)")
+
 
 
 # --- helpers ------------------------------------------------------------------------------------
@@ -443,6 +450,14 @@ def finite(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def non_negative(text: str) -> float:
+    """argparse ``type``: a finite number >= 0."""
+    value = finite(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
     return value
 
 

@@ -57,7 +57,8 @@ trained with a smaller preset than the paper's (see --hidden, --filters, --gener
 --lpn-epochs, --learning-rate; RUN/lpn), its FiLM generator fine-tuned on the held-out styles
 (--finetune-steps), then base styles, a fine-tuned style and a FiLM blend along the paths
 (RUN/synthesis/lpn-film: GIF, BVH files, quality.csv), and the same quality table and targets
-(RUN/synthesis/lpn-film/quality_targets.csv).
+(RUN/synthesis/lpn-film/quality_targets.csv). The characters' local phases advance at least
+--phase-floor of their capture's rate (0: the paper's runtime, whose loop can stall).
 """
 DEMO_MAX_BASE_STYLES = 8
 DEMO_MODELS = ("pfnn", "lpn-film", "lpn-onehot", "lpn-resad", "mann-film")
@@ -79,7 +80,9 @@ def add_arguments(p) -> None:
                    help="pfnn: the 2018 pipeline; lpn-film (or another LPN/MANN model of the 2022 paper's Table 2): "
                         "the 2022 pipeline")
     g = p.add_argument_group("2022 models (--model lpn-film ...)")
-    g.add_argument("--lpn-epochs", type=int, default=2, help="training epochs of the 2022 model (paper: 90)")
+    g.add_argument("--lpn-epochs", type=int, default=4,
+                   help="training epochs of the 2022 model (paper: 90; after 2 the closed loop of most styles still "
+                        "stalls, docs/mason2022.md)")
     g.add_argument("--learning-rate", type=finite, default=1e-3,
                    help="Adam learning rate of the 2022 model (demo: 1e-3 for its few epochs; paper and "
                         "`jaxstyle lpn`: 1e-4)")
@@ -198,7 +201,7 @@ def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
             run.say(line)
         files += list(finetune.write_finetune(result, run.dir / "lpn").values())
         sets = list(result.styles[:1])
-    loaded = synthesis2022.Loaded(model, data, run.dir / "lpn", args.lpn_epochs)
+    loaded = synthesis2022.Loaded(model, data, run.dir / "lpn", args.lpn_epochs, args.phase_floor)
     base_styles = [s for s in ("Neutral", "Crouched") if s in model.data.styles] or list(model.data.styles[:2])
     blend = list(args.blend_weights) if args.blend_weights else None
     if blend is not None and len(blend) == 3 and len(base_styles) + len(sets) < 3:

@@ -21,6 +21,7 @@ from jaxstyle.cli.common import (
     finite,
     joint_map,
     machine,
+    non_negative,
     progress,
     written,
 )
@@ -68,6 +69,11 @@ def add_arguments(p) -> None:
     p.add_argument("--batch-size", type=int, default=32,
                    help="minibatch (paper: 32); Adam's rate scales by sqrt(batch / 32) from 1e-4")
     p.add_argument("--bf16", action="store_true", help="bfloat16 products, float32 accumulation and weights")
+    p.add_argument("--input-noise", type=non_negative, default=0.0,
+                   help="std of Gaussian noise on the normalised inputs in training (not in the paper; 0: none)")
+    p.add_argument("--rollout-steps", type=int, default=0,
+                   help="rollout training: each row starts a window of 1 + N frames fed the network's own outputs "
+                        "(not in the paper; 0: none; docs/mason2022.md, 'Why the closed loop freezes')")
     add_joint_map_arg(p)
     add_distributed_args(p)
     add_common(p)
@@ -155,8 +161,9 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
 
 
 def _speed_options(args) -> dict:
-    """``train_model`` options of --devices, --distributed, --batch-size and --bf16 (defaults: the
-    paper's batch 32 and rate 1e-4, float32, one device)."""
+    """``train_model`` options of --devices, --distributed, --batch-size, --bf16, --input-noise and
+    --rollout-steps (defaults: the paper's batch 32 and rate 1e-4, float32, one device, no noise,
+    no rollout training)."""
     from jaxstyle.mason2022 import train as train_lpn
     from jaxstyle.train import shard
 
@@ -172,7 +179,13 @@ def _speed_options(args) -> dict:
             raise CLIError(f"--devices {args.devices}: {e}") from None
     if devices is None and args.distributed:
         devices = "all"  # every process's devices
+    if args.rollout_steps < 0:
+        raise CLIError(f"--rollout-steps must be >= 0, got {args.rollout_steps}")
     options = {"devices": devices, "compute_dtype": "bfloat16" if args.bf16 else "float32"}
+    if args.input_noise:
+        options["input_noise"] = args.input_noise
+    if args.rollout_steps:
+        options["rollout_steps"] = args.rollout_steps
     if args.batch_size != train_lpn.PAPER_BATCH:
         scaled = train_lpn.with_batch_size(train_lpn.LPNTrainConfig(), args.batch_size)
         options.update(batch_size=scaled.batch_size, learning_rate=scaled.learning_rate)

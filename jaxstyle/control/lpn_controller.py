@@ -20,7 +20,10 @@ Each frame:
   input;
 * local phases: the network predicts both the next phases ``P~_{t+1}`` and the update ``dP``; the
   carried phases become their average, ``P_{t+1} = (P~_{t+1} + P_t + dP) / 2`` (Starke et al.
-  2020's runtime blends the two estimates the same way, which keeps the phases from drifting);
+  2020's runtime blends the two estimates the same way, which keeps the phases from drifting;
+  :func:`feed_back`), then each limb's advance is floored at the character's ``phase_floor``
+  (:func:`floored_phases`: by default 0.75 of its style's capture rate, so the loop cannot settle
+  on a still pose; 0 is the paper's runtime);
 * the global phase ``phi`` (cycles), the expert blend of Table 2's PFNN-backbone models (PFNN
   One-hot, PFNN Resad, PFNN FiLM: the network is evaluated at ``phi``), advances by
   :func:`global_phase_advance` (below); the LPN and MANN backbones carry it too but do not read it;
@@ -70,6 +73,7 @@ from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
+from jaxstyle.train.defaults import PHASE_FLOOR
 
 
 class LPNState(NamedTuple):
@@ -79,7 +83,9 @@ class LPNState(NamedTuple):
     trajectory ``future (4, 6)`` (x, z, direction x, z at offsets 0 .. 50) in the current frame,
     the ``global_phase ()`` in cycles, ``[0, 1)`` (the PFNN backbone's expert blend), and
     ``phase_ratio ()``, the style's ratio of global to local phase advance
-    (:func:`global_phase_ratio`; constant over a rollout)."""
+    (:func:`global_phase_ratio`; constant over a rollout), and ``phase_floor ()``, the least advance
+    of each limb's local phase per frame, in cycles (:func:`floored_phases`; 0: none, the paper's
+    runtime)."""
 
     hist_xz: jax.Array
     hist_yaw: jax.Array
@@ -88,6 +94,7 @@ class LPNState(NamedTuple):
     future: jax.Array
     global_phase: jax.Array
     phase_ratio: jax.Array
+    phase_floor: jax.Array = np.float32(0.0)
 
 
 class LPNRollout(NamedTuple):
@@ -145,6 +152,45 @@ def predicted_advance(y_O: jax.Array, num_bones: int) -> jax.Array:
     return local_phase_advance(nxt - y_O[..., g["local_phase_update"]], nxt)
 
 
+def floored_phases(p0_8: jax.Array, p1_8: jax.Array, floor) -> jax.Array:
+    """The next local phases ``p1 (8,)`` with each limb's advance from ``p0`` at least ``floor``
+    cycles: a limb whose phase (the angle of ``z = cos + i sin`` of its (sin, cos) pair) advanced
+    less is ``p0``'s angle moved on by ``floor`` at ``p1``'s amplitude. A limb of ``p0`` without
+    amplitude (no angle to move on) keeps ``p1``; ``floor = 0`` returns ``p1`` unchanged.
+
+    Why: the runtime blend of Starke et al. 2020, ``(P~_{t+1} + P_t + dP) / 2``, has a fixed point
+    wherever the network's predicted phase stops turning with a still pose, and an under-trained
+    network's closed loop settles there (the phases stall, the gating stops cycling the experts,
+    the character freezes and glides; docs/mason2022.md, "Why the closed loop freezes"). With a
+    floor from the style's capture (:func:`capture_phase_rate`) the phases keep turning, so the
+    experts keep cycling; the network still sets each limb's amplitude and any faster advance."""
+    a = p0_8.reshape(NUM_PHASE_FEATURES // 2, 2)
+    b = p1_8.reshape(NUM_PHASE_FEATURES // 2, 2)
+    cross = a[:, 1] * b[:, 0] - a[:, 0] * b[:, 1]
+    dot = a[:, 1] * b[:, 1] + a[:, 0] * b[:, 0]
+    advance_b = jnp.arctan2(cross, dot) / (2.0 * np.pi)
+    r0 = jnp.linalg.norm(a, axis=-1)
+    r1 = jnp.linalg.norm(b, axis=-1)
+    angle = jnp.arctan2(a[:, 0], a[:, 1]) + 2.0 * np.pi * floor
+    moved = jnp.stack([r1 * jnp.sin(angle), r1 * jnp.cos(angle)], axis=-1)
+    use = (floor > 0) & (advance_b < floor) & (r0 > 1e-6)
+    return jnp.where(use[:, None], moved, b).reshape(-1)
+
+
+def capture_phase_rate(dataset, name: str) -> float:
+    """The median advance per frame (cycles) of the local phases of dataset style ``name``'s rows
+    (:func:`local_phase_advance` between each row and the next frame of its clip): the rate a
+    character of that style's capture steps at. 0 for a style without consecutive rows."""
+    rows = style_rows(dataset, name)
+    rows = rows[np.lexsort((dataset.frame[rows], dataset.clip[rows]))]
+    clip, frame = dataset.clip[rows], dataset.frame[rows]
+    pair = (clip[1:] == clip[:-1]) & (frame[1:] == frame[:-1] + 1)
+    if not pair.any():
+        return 0.0
+    p = np.asarray(dataset.phases[rows], np.float64)
+    return float(np.median(local_phase_advance(p[:-1], p[1:])[pair]))
+
+
 def global_phase_ratio(global_phase_N: np.ndarray, omega_N: np.ndarray, clip_N: np.ndarray,
                        frame_N: np.ndarray) -> float:
     """``kappa``: the global phase's advance over the predicted local one, ``sum dphi / sum
@@ -195,10 +241,11 @@ def phase_ratio(params: dict, config: StyleModelConfig, style, x_norm: Normalise
 
 
 def initial_state(x_row: np.ndarray, phases_row: np.ndarray, num_bones: int, global_phase: float = 0.0,
-                  phase_ratio: float = 1.0) -> LPNState:
+                  phase_ratio: float = 1.0, phase_floor: float = 0.0) -> LPNState:
     """The loop's start from one de-normalised LPN input row, its local phases and its global phase
     (cycles; e.g. a frame of real data: ``dataset.global_phase[row]``), with the style's
-    ``phase_ratio`` (:func:`global_phase_ratio`): the character stands at the global origin facing
+    ``phase_ratio`` (:func:`global_phase_ratio`) and ``phase_floor`` (cycles per frame,
+    :func:`floored_phases`; 0: the paper's runtime): the character stands at the global origin facing
     +Z with that row's pose."""
     layout = LPNLayout(num_bones)
     x = np.asarray(x_row, dtype=np.float64)
@@ -208,14 +255,14 @@ def initial_state(x_row: np.ndarray, phases_row: np.ndarray, num_bones: int, glo
     if p.shape != (NUM_PHASE_FEATURES,):
         raise ValueError(f"phases_row must have shape ({NUM_PHASE_FEATURES},), got {p.shape}")
     if not (np.isfinite(x).all() and np.isfinite(p).all() and np.isfinite(global_phase)
-            and np.isfinite(phase_ratio)):
-        raise ValueError("x_row, phases_row, global_phase and phase_ratio must be finite")
-    if phase_ratio < 0:
-        raise ValueError(f"phase_ratio must be non-negative, got {phase_ratio}")
+            and np.isfinite(phase_ratio) and np.isfinite(phase_floor)):
+        raise ValueError("x_row, phases_row, global_phase, phase_ratio and phase_floor must be finite")
+    if phase_ratio < 0 or phase_floor < 0:
+        raise ValueError(f"phase_ratio and phase_floor must be non-negative, got {phase_ratio}, {phase_floor}")
     hist_xz, hist_yaw, future = initial_ground(x, layout.input_groups)
     joints = x[layout.input_groups["joint_position"].start:]
     return LPNState(hist_xz, hist_yaw, f32(p), f32(joints), future, f32(np.mod(float(global_phase), 1.0)),
-                    f32(phase_ratio))
+                    f32(phase_ratio), f32(phase_floor))
 
 
 def _yaw_rotate(v_Nx3: jax.Array, a) -> jax.Array:
@@ -250,6 +297,30 @@ def damp_output(y: jax.Array, move, num_bones: int) -> jax.Array:
     return jnp.concatenate([ptx, ptz, dtx, dtz, joints.reshape(-1), y[g["joint_up"].stop:]])
 
 
+def feed_back(joints: jax.Array, phases: jax.Array, y: jax.Array, num_bones: int, joint_smooth=loop.JOINT_SMOOTH
+              ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """What the next frame's input reads of the de-normalised output ``y`` given the current
+    joint features ``joints (12 B,)`` (in ``C_t``) and local ``phases (8,)``: returns ``y`` with the
+    smoothed bone positions (``joint_smooth``, see :func:`advance`), the next joint features
+    ``(12 B,)`` re-expressed in ``C_{t+1}`` (the ground frame the output's first trajectory sample
+    gives) and the blended local phases ``(P~_{t+1} + P_t + dP) / 2``. The runtime
+    (:func:`advance`) and rollout training (:func:`jaxstyle.mason2022.train.rollout_loss`, under
+    ``vmap``) share it, so training feeds the network exactly what the closed loop will."""
+    g = LPNLayout(num_bones).output_groups
+    s = jnp.asarray(joint_smooth, y.dtype)
+    now = joints.reshape(4, num_bones, 3)
+    predicted = y[g["joint_position"]].reshape(num_bones, 3)
+    moved_on = now[0] + y[g["joint_velocity"]].reshape(num_bones, 3)
+    y = y.at[g["joint_position"]].set((s * predicted + (1.0 - s) * moved_on).reshape(-1))
+    tx, tz, tdx, tdz = y[g["trajectory_position"].start:g["trajectory_direction"].stop].reshape(4, FUTURE_SAMPLES)
+    turn = jnp.arctan2(tdx[0], tdz[0])
+    feats = y[g["joint_position"].start:g["joint_up"].stop].reshape(4, num_bones, 3)  # pos, vel, fwd, up in C_t
+    shift = jnp.stack([tx[0], jnp.zeros_like(tx[0]), tz[0]])
+    next_feats = jnp.stack([_yaw_rotate(feats[0] - shift, -turn)] + [_yaw_rotate(v, -turn) for v in feats[1:]])
+    blended = 0.5 * (y[g["local_phase"]] + phases + y[g["local_phase_update"]])
+    return y, next_feats.reshape(-1), blended
+
+
 def advance(state: LPNState, y: jax.Array, num_bones: int, stand=0.0, joint_smooth=loop.JOINT_SMOOTH
             ) -> tuple[LPNState, LPNRollout]:
     """Move the character by one de-normalised output ``y (24 + 12 B + 18,)``: the next state and
@@ -262,11 +333,7 @@ def advance(state: LPNState, y: jax.Array, num_bones: int, stand=0.0, joint_smoo
     move, phase_scale = loop.stand_damping(stand)
     y = damp_output(y, move, num_bones)
     g = LPNLayout(num_bones).output_groups
-    s = jnp.asarray(joint_smooth, y.dtype)
-    now = state.joints.reshape(4, num_bones, 3)
-    predicted = y[g["joint_position"]].reshape(num_bones, 3)
-    moved_on = now[0] + y[g["joint_velocity"]].reshape(num_bones, 3)
-    y = y.at[g["joint_position"]].set((s * predicted + (1.0 - s) * moved_on).reshape(-1))
+    y, next_joints, blended = feed_back(state.joints, state.phases, y, num_bones, joint_smooth)
     origin, yaw = state.hist_xz[-1], state.hist_yaw[-1]
     traj = y[g["trajectory_position"].start:g["trajectory_direction"].stop]
     tx, tz, tdx, tdz = traj.reshape(4, FUTURE_SAMPLES)
@@ -277,20 +344,18 @@ def advance(state: LPNState, y: jax.Array, num_bones: int, stand=0.0, joint_smoo
     # future trajectory samples t+1+0..50, from C_t into C_{t+1}
     fx, fz = rotate_xz(tx - tx[0], tz - tz[0], -turn)
     fdx, fdz = rotate_xz(tdx, tdz, -turn)
-    feats = y[g["joint_position"].start:g["joint_up"].stop].reshape(4, num_bones, 3)  # pos, vel, fwd, up in C_t
-    pos = feats[0]
+    pos = y[g["joint_position"]].reshape(num_bones, 3)  # in C_t
     gpx, gpz = rotate_xz(pos[:, 0], pos[:, 2], yaw)
     positions = jnp.stack([gpx + origin[0], pos[:, 1], gpz + origin[1]], axis=-1)
-    shift = jnp.stack([tx[0], 0.0, tz[0]])
-    next_feats = jnp.stack([_yaw_rotate(pos - shift, -turn)] + [_yaw_rotate(v, -turn) for v in feats[1:]])
-    blended = 0.5 * (y[g["local_phase"]] + state.phases + y[g["local_phase_update"]])
     phases = state.phases + phase_scale * (blended - state.phases)
+    phases = floored_phases(state.phases, phases, phase_scale * state.phase_floor)
     dphi = phase_scale * state.phase_ratio * jnp.maximum(predicted_advance(y, num_bones), 0.0)
     global_phase = jnp.mod(state.global_phase + dphi, 1.0)
     contacts = y[g["foot_contact"]]
     new_state = LPNState(jnp.concatenate([state.hist_xz[1:], new_origin[None]]),
                          jnp.concatenate([state.hist_yaw[1:], new_yaw[None]]), phases,
-                         next_feats.reshape(-1), jnp.stack([fx, fz, fdx, fdz]), global_phase, state.phase_ratio)
+                         next_joints, jnp.stack([fx, fz, fdx, fdz]), global_phase, state.phase_ratio,
+                         state.phase_floor)
     return new_state, LPNRollout(positions, new_origin, new_yaw, phases, contacts, y, global_phase)
 
 
@@ -329,10 +394,12 @@ class StyleNetModel:
     num_bones: int = struct.field(pytree_node=False)
     gate_columns: tuple | None = struct.field(pytree_node=False, default=None)
     blend_bias: float = struct.field(pytree_node=False, default=1.5)
+    phase_floor: float = struct.field(pytree_node=False, default=PHASE_FLOOR)
 
     @classmethod
     def create(cls, params: dict, config: StyleModelConfig, normalisers: tuple[Normaliser, Normaliser],
-               skeleton=None, *, blend_bias: float = 1.5) -> StyleNetModel:
+               skeleton=None, *, blend_bias: float = 1.5, phase_floor: float = PHASE_FLOOR
+               ) -> StyleNetModel:
         """The model of a trained ``params``/``config`` with its training data's (input, output)
         :class:`Normaliser` s (or ``(mean, std)`` pairs); ``skeleton``, a clip of the training
         skeleton, gives the MANN backbone's gating columns (the other backbones need none)."""
@@ -341,7 +408,10 @@ class StyleNetModel:
         if LPNLayout(num_bones).input_size != config.input_size:
             raise ValueError(f"the normalisers have {len(x_norm[0])} inputs, the model {config.input_size}")
         cols = end_effector_columns(skeleton) if config.backbone == "mann" and skeleton is not None else None
-        return cls(params, x_norm, y_norm, config, int(num_bones), _check(config, cols), float(blend_bias))
+        if not phase_floor >= 0:
+            raise ValueError(f"phase_floor must be a non-negative fraction of the capture's rate, got {phase_floor}")
+        return cls(params, x_norm, y_norm, config, int(num_bones), _check(config, cols), float(blend_bias),
+                   float(phase_floor))
 
     def step(self, style, state: LPNState, control) -> tuple[LPNState, LPNRollout]:
         """One frame: the LPN-layout input from the carried state, the network with ``style`` and
@@ -369,9 +439,11 @@ class StyleNetModel:
         the global phase's rate for ``style`` on the row's dataset style (:meth:`phase_ratio`;
         ``style=None``: rate 1). A dataset without global phases starts at phase 0, which only the
         PFNN backbone reads."""
-        ratio = 1.0 if style is None else self.phase_ratio(style, dataset, dataset.styles[int(dataset.style[row])])
+        name = dataset.styles[int(dataset.style[row])]
+        ratio = 1.0 if style is None else self.phase_ratio(style, dataset, name)
         phase = float(dataset.global_phase[row]) if len(dataset.global_phase) == len(dataset.inputs) else 0.0
-        return initial_state(dataset.inputs[row], dataset.phases[row], self.num_bones, phase, ratio)
+        floor = self.phase_floor * capture_phase_rate(dataset, name) if self.phase_floor > 0 else 0.0
+        return initial_state(dataset.inputs[row], dataset.phases[row], self.num_bones, phase, ratio, floor)
 
     @staticmethod
     def own_speed(dataset, rows: np.ndarray, units_per_meter: float, fps: float = 60.0) -> float:

@@ -149,7 +149,8 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     fine-tuning, in ONE batched rollout; returns ``(S, R)`` arrays named by :data:`CHECK_FIELDS`
     and per style ``(S,)`` references ``real_contact_fraction``, ``speed_m_s``,
     ``base_skating_m_s``, ``base_bone_error`` (see :class:`ClosedLoopCheck`; the measures and the
-    pass rule are the 2018 sweep's, :mod:`jaxstyle.output.check`)."""
+    pass rule are the 2018 sweep's, :mod:`jaxstyle.output.check`). The characters run the default
+    runtime, local phases floored (:data:`jaxstyle.train.defaults.PHASE_FLOOR`), as synthesis does."""
     from jaxstyle.control import loop, lpn_controller
     from jaxstyle.control.model import rollout_batch
     from jaxstyle.data.lpn_features import bone_points
@@ -186,7 +187,8 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
         ref["speed_m_s"][s] = speed / upm
         clip_rows = rows[raw.clip[rows] == first_clip]
         start = clip_rows[np.argmin(raw.frame[clip_rows])]
-        state = lpn_controller.initial_state(raw.inputs[start], raw.phases[start], num_bones)
+        floor = character.phase_floor * lpn_controller.capture_phase_rate(raw, new.styles[s])
+        state = lpn_controller.initial_state(raw.inputs[start], raw.phases[start], num_bones, phase_floor=floor)
         control = loop.turning_path(frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
         clips = new.clips[new.train_clips[s]]
         for r in range(num_rates + 1):  # the last: the model before fine-tuning

@@ -46,6 +46,7 @@ from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import drive
 from jaxstyle.output.check import FAILED_MARK, failed_check
 from jaxstyle.output.drive import Character
+from jaxstyle.train.defaults import PHASE_FLOOR
 
 MODELS = {"lpn-film": "LPN FiLM", "lpn-onehot": "LPN One-hot", "lpn-resad": "LPN Resad", "mann-film": "MANN FiLM",
           "pfnn-film": "PFNN FiLM", "pfnn-onehot": "PFNN One-hot", "pfnn-resad": "PFNN Resad"}
@@ -65,14 +66,17 @@ class Loaded(NamedTuple):
     data: pipeline.LPNData
     directory: Path
     epochs: int
+    phase_floor: float = PHASE_FLOOR
 
     def character_model(self, *, blend_bias: float = 1.5) -> StyleNetModel:
         """The model as a :class:`jaxstyle.control.model.CharacterModel`
         (:class:`jaxstyle.control.lpn_controller.StyleNetModel`: a character's conditioning is its
-        runtime style), normalised with its training data's statistics."""
+        runtime style), normalised with its training data's statistics, its local phases floored
+        at ``phase_floor`` times each style's capture rate
+        (:func:`jaxstyle.control.lpn_controller.floored_phases`; 0: the paper's runtime)."""
         m = self.model
         return StyleNetModel.create(m.params, m.config, self.data.base.normalisers(), self.data.skeleton,
-                                    blend_bias=blend_bias)
+                                    blend_bias=blend_bias, phase_floor=self.phase_floor)
 
 
 def _dataclass(cls, values: dict):

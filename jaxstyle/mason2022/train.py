@@ -12,6 +12,9 @@
   pass over the smallest style; :func:`jaxstyle.data.batching.balanced_batches`), Adam 1e-4, batch
   32, dropout 0.3, steps in jitted ``lax.scan`` chunks under a progress bar, per-epoch
   validation, orbax checkpoints with the config beside them, ``log.csv``; resumes.
+* not in the paper, options evaluated against the closed loop's freezing (docs/mason2022.md):
+  :func:`noisy_inputs` (noise on the normalised inputs) and :func:`rollout_loss` (windows of
+  frames fed the network's own outputs through the runtime's feed-back).
 * :func:`evaluate`: per-style normalised MSE and bone-length loss, dropout off; a FiLM model uses
   each style's precomputed FiLM vector (the mean over its training clips, as at runtime).
 * :func:`finetune_film_sweep`: new styles by fine-tuning only the FiLM generator (LPN and gating
@@ -45,7 +48,12 @@ from jaxstyle.train.defaults import FILM_DEFAULT_RATES
 
 @dataclasses.dataclass(frozen=True)
 class LPNTrainConfig:
-    """Paper: batch 32, Adam 1e-4, dropout 0.3 everywhere, MSE + BLL weighted 1:1, 90 epochs."""
+    """Paper: batch 32, Adam 1e-4, dropout 0.3 everywhere, MSE + BLL weighted 1:1, 90 epochs.
+
+    Not in the paper (0: its recipe): ``input_noise``, Gaussian noise on the normalised inputs
+    (:func:`noisy_inputs`), and ``rollout_steps``, rollout training: each batch row starts a window
+    of ``1 + rollout_steps`` consecutive frames in which the network reads its own previous output
+    (:func:`rollout_loss`)."""
 
     model: StyleModelConfig = StyleModelConfig()
     epochs: int = 90
@@ -55,6 +63,8 @@ class LPNTrainConfig:
     bone_loss_weight: float = 1.0
     seed: int = 0
     log_every: int = 50
+    input_noise: float = 0.0
+    rollout_steps: int = 0
 
 
 PAPER_BATCH = 32
@@ -97,6 +107,32 @@ class StyleData(NamedTuple):
     train_clips: tuple[np.ndarray, ...]
     styles: tuple[str, ...]
     bones: BonePositions
+    next_row: np.ndarray | None = None
+    stats: tuple | None = None
+
+
+def next_rows(clip_N: np.ndarray, frame_N: np.ndarray) -> np.ndarray:
+    """``(N,)``: for each row the row of the next frame of the same clip, -1 where there is none."""
+    clip, frame = np.asarray(clip_N), np.asarray(frame_N)
+    order = np.lexsort((frame, clip))
+    out = np.full(len(clip), -1, np.int64)
+    follows = (clip[order][1:] == clip[order][:-1]) & (frame[order][1:] == frame[order][:-1] + 1)
+    out[order[:-1][follows]] = order[1:][follows]
+    return out
+
+
+def rollout_starts(rows: np.ndarray, next_row: np.ndarray, steps: int) -> np.ndarray:
+    """The ``rows`` followed by ``steps`` more frames of their clip that are all among ``rows``
+    (the starts of :func:`rollout_loss`'s windows; a window never runs into another split)."""
+    rows = np.asarray(rows)
+    inside = np.zeros(len(next_row) + 1, bool)
+    inside[rows] = True
+    cur, ok = rows.copy(), np.ones(len(rows), bool)
+    for _ in range(steps):
+        cur = next_row[cur]
+        ok &= (cur >= 0) & inside[cur]
+        cur = np.where(cur >= 0, cur, rows)
+    return rows[ok]
 
 
 def global_phase_rows(dataset) -> np.ndarray:
@@ -151,9 +187,11 @@ def style_data(dataset, skeleton: Motion, *, backbone: str = "lpn", styles: Sequ
     for s, c in zip(styles, train_clips, strict=True):
         if len(c) == 0:
             raise ValueError(f"style {s!r} has no style clip inside its training rows")
+    stats = tuple(np.asarray(a, np.float32) for a in (x_norm.mean, x_norm.std, y_norm.mean, y_norm.std))
     return StyleData(x, y, gate, clips, tuple(dataset.rows_of_style(s, "train") for s in styles),
                      tuple(dataset.rows_of_style(s, "validation") for s in styles),
-                     tuple(dataset.rows_of_style(s, "test") for s in styles), train_clips, styles, bones)
+                     tuple(dataset.rows_of_style(s, "test") for s in styles), train_clips, styles, bones,
+                     next_rows(dataset.clip, dataset.frame), stats)
 
 
 # --- loss ---------------------------------------------------------------------------------------
@@ -179,15 +217,76 @@ def _style(params, config: StyleModelConfig, clips, style, clip, key, rate):
 
 
 def batch_loss(params, config: StyleModelConfig, arrays, idx_B, style, clip, key, rate, bones: BonePositions,
-               bone_loss_weight) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+               bone_loss_weight, input_noise=0.0) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
     """``MSE + w BLL`` of one minibatch of style ``style`` (rows ``idx_B``), a FiLM model's
-    parameters from clip ``clip``; returns the total and ``(mse, bll)``."""
+    parameters from clip ``clip``; returns the total and ``(mse, bll)``. ``input_noise``: the
+    standard deviation of Gaussian noise added to the normalised inputs (:func:`noisy_inputs`; 0:
+    the paper's recipe, the same value as without it)."""
     x, y, gate, clips = arrays
     k_style, k_model = jax.random.split(key)
     st = _style(params, config, clips, style, clip, k_style, rate)
-    pred = style_models.model_apply(params, config, x[idx_B], gate[idx_B], st, key=k_model, dropout_rate=rate)
+    x_B = noisy_inputs(x[idx_B], jax.random.fold_in(key, 1), input_noise)
+    pred = style_models.model_apply(params, config, x_B, gate[idx_B], st, key=k_model, dropout_rate=rate)
     mse, bll = losses(pred, y[idx_B], bones)
     return mse + bone_loss_weight * bll, (mse, bll)
+
+
+def noisy_inputs(x_BxD: jax.Array, key: jax.Array, std) -> jax.Array:
+    """``x + std * N(0, 1)`` (normalised inputs; ``std = 0`` returns ``x``). Not in the paper: at
+    runtime the network reads its own previous output (pose, velocities, predicted trajectory),
+    never exactly a captured row, and trained only on clean rows it learns to copy the input
+    pose forward; the closed loop then settles on a still pose (docs/mason2022.md, "Why the
+    closed loop freezes"). Noise on the inputs, with the clean next frame as the target, is the
+    standard remedy for a model fed its own outputs (a denoising objective). An array, so sweeps
+    vmap over it."""
+    return x_BxD + std * jax.random.normal(key, x_BxD.shape, x_BxD.dtype)
+
+
+def rollout_loss(params, config: StyleModelConfig, arrays, feedback, idx_B, style, clip, key, rate,
+                 bones: BonePositions, bone_loss_weight, input_noise=0.0, *, steps: int
+                 ) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+    """Rollout training (not in the paper): the mean of :func:`batch_loss`'s ``MSE + w BLL`` over
+    windows of ``1 + steps`` consecutive frames starting at rows ``idx_B``
+    (:func:`rollout_starts`). The first frame reads the captured input; each later frame reads
+    the captured trajectory (the user's control at runtime) with the joint features the network
+    predicted one frame before, re-expressed in the frame it predicted
+    (:func:`jaxstyle.control.lpn_controller.feed_back`, what the runtime feeds back), and, for the
+    LPN, the local phases the runtime would carry; every frame's target is the captured next
+    frame. Gradients flow through the fed-back inputs (back-propagation through time).
+
+    Why: the network trained only on captured inputs (the paper's recipe) learns to carry the
+    input pose forward, and its closed loop stalls on a still pose (docs/mason2022.md, "Why the
+    closed loop freezes"); exposed to its own outputs, it learns to step from them (the remedy
+    of scheduled sampling, Bengio et al. 2015, and of the rollout losses of later character
+    controllers). ``feedback``: ``(next_row, x_mean, x_std, y_mean, y_std)`` of
+    :class:`StyleData`."""
+    from jaxstyle.control.lpn_controller import feed_back
+
+    x, y, gate, clips = arrays
+    next_row, x_mean, x_std, y_mean, y_std = feedback
+    layout = LPNLayout.of_inputs(x.shape[1])
+    j0 = layout.input_groups["joint_position"].start
+    k_style, k_model = jax.random.split(key)
+    st = _style(params, config, clips, style, clip, k_style, rate)
+    rows = idx_B
+    x_B, g_B = x[rows], gate[rows]
+    total = mse_sum = bll_sum = 0.0
+    for k in range(steps + 1):
+        kk = jax.random.fold_in(k_model, k)
+        pred = style_models.model_apply(params, config, noisy_inputs(x_B, jax.random.fold_in(kk, 1), input_noise),
+                                        g_B, st, key=kk, dropout_rate=rate)
+        mse, bll = losses(pred, y[rows], bones)
+        total, mse_sum, bll_sum = total + mse + bone_loss_weight * bll, mse_sum + mse, bll_sum + bll
+        if k < steps:
+            joints = x_B[:, j0:] * x_std[j0:] + x_mean[j0:]
+            _, nxt_joints, phases = jax.vmap(feed_back, in_axes=(0, 0, 0, None))(
+                joints, g_B if config.backbone == "lpn" else jnp.zeros((len(rows), 8), x.dtype),
+                pred * y_std + y_mean, layout.num_bones)
+            rows = next_row[rows]
+            x_B = jnp.concatenate([x[rows][:, :j0], (nxt_joints - x_mean[j0:]) / x_std[j0:]], axis=1)
+            g_B = phases if config.backbone == "lpn" else gate[rows]
+    n = steps + 1
+    return total / n, (mse_sum / n, bll_sum / n)
 
 
 # --- training -----------------------------------------------------------------------------------
@@ -201,7 +300,8 @@ def init_state(key: jax.Array, config: LPNTrainConfig) -> dict:
 COMPUTE_DTYPES = ("float32", "bfloat16")
 
 
-def _step_loss(params, config: StyleModelConfig, arrays, inputs, key, rate, weight, bones, compute_dtype: str):
+def _step_loss(params, config: StyleModelConfig, arrays, inputs, key, rate, weight, bones, compute_dtype: str,
+               noise=0.0, feedback=None, rollout_steps: int = 0):
     """One step's loss; ``compute_dtype="bfloat16"`` casts every weight matrix to bfloat16 for the
     products (accumulated in float32: :func:`jaxstyle.nn.pfnn.pf_dense`,
     :func:`jaxstyle.nn.film_generator.generator_apply`), the float32 master weights get float32
@@ -209,13 +309,17 @@ def _step_loss(params, config: StyleModelConfig, arrays, inputs, key, rate, weig
     idx, style, clip = inputs
     if compute_dtype != "float32":
         params = pfnn.cast_weights(params, jnp.dtype(compute_dtype))
-    return batch_loss(params, config, arrays, idx, style, clip, key, rate, _bones(bones), weight)
+    if rollout_steps:
+        return rollout_loss(params, config, arrays, feedback, idx, style, clip, key, rate, _bones(bones), weight,
+                            noise, steps=rollout_steps)
+    return batch_loss(params, config, arrays, idx, style, clip, key, rate, _bones(bones), weight, noise)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate", "compute_dtype"),
+@functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate", "compute_dtype", "rollout_steps"),
                    donate_argnames=("params", "opt_state"))
-def _train_chunk(params, opt_state, arrays, batches_TxB, styles_T, clips_T, keys_T, rate, weight, *,
-                 config: StyleModelConfig, bones: BonePositions, learning_rate: float, compute_dtype: str = "float32"):
+def _train_chunk(params, opt_state, arrays, batches_TxB, styles_T, clips_T, keys_T, rate, weight, noise=0.0,
+                 feedback=None, *, config: StyleModelConfig, bones: BonePositions, learning_rate: float,
+                 compute_dtype: str = "float32", rollout_steps: int = 0):
     """Steps of full training as one ``lax.scan``: per step the gradient of :func:`batch_loss` and
     an ``optax.adam(learning_rate)`` update; returns the new parameters, optimiser state and per
     step ``(loss, mse, bll)``.
@@ -235,7 +339,7 @@ def _train_chunk(params, opt_state, arrays, batches_TxB, styles_T, clips_T, keys
         p, opt = carry
         *step_inputs, key = inputs
         (value, (mse, bll)), grads = jax.value_and_grad(_step_loss, has_aux=True)(
-            p, config, arrays, step_inputs, key, rate, weight, bones, compute_dtype)
+            p, config, arrays, step_inputs, key, rate, weight, bones, compute_dtype, noise, feedback, rollout_steps)
         updates, opt = optimiser.update(grads, opt, p)
         return (optax.apply_updates(p, updates), opt), jnp.stack([value, mse, bll])
 
@@ -292,12 +396,26 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
     ``devices="all"`` (or a count): data-parallel over that many devices
     (:mod:`jaxstyle.train.shard`: each batch's rows split over the devices, the parameters
     replicated); the batch size must divide by the device count. The result equals the one-device
-    run up to the order of float sums, so a run may resume on another device count."""
+    run up to the order of float sums, so a run may resume on another device count.
+
+    ``config.rollout_steps > 0``: batches are drawn from the training rows that start a whole
+    window (:func:`rollout_starts`) and each step is :func:`rollout_loss`."""
     if config.model.num_styles != len(data.styles):
         raise ValueError(f"the model has {config.model.num_styles} styles, the data {len(data.styles)}")
+    mesh = shard.data_mesh(devices)
+    feedback = None
+    if config.rollout_steps:
+        if config.rollout_steps < 0 or config.model.backbone == "mann":
+            raise ValueError("rollout_steps must be non-negative, and rollout training feeds back the LPN and PFNN "
+                             f"backbones' inputs only (got {config.rollout_steps} steps, {config.model.backbone})")
+        if data.next_row is None or data.stats is None:
+            raise ValueError("rollout training needs the data's next rows and normalisers: build it with style_data")
+        starts = tuple(rollout_starts(r, data.next_row, config.rollout_steps) for r in data.train_rows)
+        data = data._replace(train_rows=starts)
+        feedback = shard.replicate((jnp.asarray(np.maximum(data.next_row, 0).astype(np.int32)),
+                                    *(jnp.asarray(a) for a in data.stats)), mesh)
     if compute_dtype not in COMPUTE_DTYPES:
         raise ValueError(f"compute_dtype must be one of {COMPUTE_DTYPES}, got {compute_dtype!r}")
-    mesh = shard.data_mesh(devices)
     shard.check_batch(mesh, config.batch_size)
     arrays = shard.replicate(_device_arrays(data), mesh)
     bones = _Static(data.bones)
@@ -312,8 +430,9 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
             params, opt_state = shard.replicate((state["params"], state["opt_state"]), mesh)
             params, opt_state, out = _train_chunk(
                 params, opt_state, arrays, batches_dev[a:b], styles_dev[a:b], clips_dev[a:b], keys[a:b],
-                jnp.float32(config.dropout_rate), jnp.float32(config.bone_loss_weight), config=config.model,
-                bones=bones, learning_rate=config.learning_rate, compute_dtype=compute_dtype)
+                jnp.float32(config.dropout_rate), jnp.float32(config.bone_loss_weight),
+                jnp.float32(config.input_noise), feedback, config=config.model, bones=bones,
+                learning_rate=config.learning_rate, compute_dtype=compute_dtype, rollout_steps=config.rollout_steps)
             return {**state, "params": params, "opt_state": opt_state}, out
 
         return len(batches), run_chunk
@@ -334,9 +453,13 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
 
 
 def _run_config(config: LPNTrainConfig, styles: Sequence[str], compute_dtype: str = "float32") -> dict:
-    """``config.json`` of a run: the compute dtype only when it is not float32, so the run folders
-    of float32 runs made before the option existed still resume and load."""
-    run = {"train": config, "styles": list(styles)}
+    """``config.json`` of a run: the compute dtype only when it is not float32, and the options
+    outside the paper's recipe (``input_noise``, ``rollout_steps``) only when set, so the run
+    folders made before those options existed still resume and load."""
+    train = {k: v for k, v in dataclasses.asdict(config).items()
+             if not (k in ("input_noise", "rollout_steps") and not v)}
+    train["model"] = config.model
+    run = {"train": train, "styles": list(styles)}
     if compute_dtype != "float32":
         run["compute_dtype"] = compute_dtype
     return run

@@ -121,10 +121,42 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
         fidelity["style_shows"] = (None if captures[i] is neutral
                                    else style.shows(fidelity["style_distance"], captures[i].to(neutral)))
         results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row,
-                        **fidelity})
+                        **fidelity, **phase_figures(one, signals[k], s)})
     for s, c in zip(subjects, captures, strict=True):
         results.append(capture_row(s, c, neutral))
     return Measured(results, drawn)
+
+
+STALLED_MARK = "[PHASES STALLED]"
+"""How :func:`table` marks a path whose character's local phases stalled (:func:`phase_figures`)."""
+
+STALL_RATIO = 0.25
+"""A character's local phases have stalled when, over the frames where its path asks it to move,
+they advance at under this fraction of its style's capture rate (a quarter: a character stepping
+at its capture's pace within the 25% the benchmark allows never comes near it)."""
+
+
+def phase_figures(rollout, signal: paths.PathSignal, subject: Subject) -> dict:
+    """For a model carrying local phases (the 2022 LPN-layout rollouts, ``phases (T, 8)``): the
+    median advance of its phases per frame over the frames after the first second where the path
+    asks it to move, as a fraction of its style's capture rate
+    (:func:`jaxstyle.control.lpn_controller.capture_phase_rate`), ``phase_rate_ratio``, and
+    ``phases_stalled`` (below :data:`STALL_RATIO`: the closed loop froze and the character glides).
+    Empty for other models."""
+    from jaxstyle.control.lpn_controller import capture_phase_rate, local_phase_advance
+
+    phases = np.asarray(getattr(rollout, "phases", np.zeros((0, 0))))
+    if phases.ndim != 2 or phases.shape[1] != 8 or len(phases) < 3:
+        return {}
+    capture = capture_phase_rate(subject.dataset, subject.style)
+    start = int(round(signal.fps))
+    moving = np.hypot(*np.asarray(signal.velocity, np.float64).T)[1:] > 1e-6
+    advance = local_phase_advance(np.asarray(phases[:-1], np.float64), np.asarray(phases[1:], np.float64))
+    use = moving & (np.arange(1, len(phases)) >= start)
+    if not use.any() or not capture > 0:
+        return {"phase_rate_ratio": math.nan, "phases_stalled": None}
+    ratio = float(np.median(advance[use]) / capture)
+    return {"phase_rate_ratio": ratio, "phases_stalled": bool(ratio < STALL_RATIO)}
 
 
 def run(model: CharacterModel, subjects: Sequence[Subject], skeleton: Motion, *,
@@ -303,6 +335,8 @@ def table(rows: list[dict]) -> list[str]:
     for r in sorted(rows, key=lambda r: (order[_model(r)], r["style"], r["path"] != "capture")):
         g = r.get
         path = f"capture ({r['capture_file']})" if r["path"] == "capture" and g("capture_file") else r["path"]
+        if g("phases_stalled") in (True, "True"):  # the closed loop froze: said, not hidden
+            path += f" {STALLED_MARK}"
         lines.append(
             f"| {_model(r)} | {r['style']} | {path} | {_f(r['foot_skating_m_s'])} / "
             f"{_f(r['foot_skating_bvh_m_s'])} / {_f(g('foot_skating_locked_m_s'))} | "

@@ -157,6 +157,7 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
         row = {"style": c.title, "path": p, "foot_lock": bool(foot_lock), **q.as_row()}
         measured = measure.measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         row.update({key: measured.get(key, float("nan")) for key in EXPORTED_FIGURES})
+        row.update(quality.phase_figures(one, signals[k], c))  # a 2022 character whose phases stalled
         if e.lock is not None:
             motion = e.lock.motion if foot_lock else export.rollout_motion(one, skeleton)
             files += export.save_rollout(out / "bvh" / f"{c.label}_{p}", one, skeleton, motion=motion).values()
@@ -206,13 +207,15 @@ def quality_table(rows: list[dict]) -> list[str]:
     exported BVH's skeleton and of that skeleton after foot locking (what the BVH files hold by
     default), steps per second and stance fraction after locking, how far the lock moved a foot,
     bone error of the network's joints and of the BVH, path error, time to stop, jitter
-    (:func:`write_results`)."""
+    (:func:`write_results`). A 2022 character whose local phases stalled has its path marked
+    :data:`jaxstyle.output.quality.STALLED_MARK` (:func:`jaxstyle.output.quality.phase_figures`)."""
     lines = ["| style | path | skating m/s network / BVH / locked | steps/s | stance | foot offset m "
              "| bone error network mean / max / BVH max | path error mean / final m | stop s | jitter m/s^3 |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         g = r.get
-        lines.append(f"| {r['style']} | {r['path']} | {_f(g('foot_skating_m_s'))} / {_f(g('foot_skating_bvh_m_s'))} / "
+        path = r["path"] + (f" {quality.STALLED_MARK}" if g("phases_stalled") in (True, "True") else "")
+        lines.append(f"| {r['style']} | {path} | {_f(g('foot_skating_m_s'))} / {_f(g('foot_skating_bvh_m_s'))} / "
                      f"{_f(g('foot_skating_locked_m_s'))} | {_f(g('steps_per_s'))} | {_f(g('stance_fraction'))} "
                      f"| {_f(g('ik_foot_offset_max_m'), 3)} "
                      f"| {_f(100 * r['bone_error_mean'], 1)}% / {_f(100 * r['bone_error_max'], 0)}% / "

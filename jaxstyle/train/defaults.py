@@ -17,6 +17,16 @@ FILM_DEFAULT_RATES: tuple[float, ...] = (0.1, 0.3, 0.5)
 (:data:`DEFAULT_RATES`), the generator being trained with 0.3."""
 
 
+PHASE_FLOOR = 0.75
+"""The runtime's default floor on each limb's local-phase advance, as a fraction of the style's
+capture rate (:func:`jaxstyle.control.lpn_controller.floored_phases`,
+:func:`jaxstyle.control.lpn_controller.capture_phase_rate`): 0 is the paper's runtime. 0.75
+is the lower edge of the band (within 25% of the capture's rate) a stepping character's phases
+should keep; measured on the demo's 100STYLE styles against 0.5 (docs/mason2022.md, "Why the
+closed loop freezes"), so the phase rate of a character run with it is not independent evidence
+that it steps: its steps per second, skating and style distance are."""
+
+
 @dataclasses.dataclass(frozen=True)
 class RolloutCheck:
     """The closed-loop check of a fine-tuned new style, both papers' (the 2018 adapters' in

@@ -1,0 +1,180 @@
+"""Why the 2022 closed loop freezes, and what each remedy does: the same data, the same model size,
+trained by each recipe, driven with the paper's runtime and with the local phases floored.
+
+    python experiments/mason2022_closed_loop.py [--epochs 4] [--run runs/closed_loop]
+
+Protocol (fixed):
+
+1. Data: the demo's 2022 data, the shared 100STYLE sample's paper base styles (Angry, Chicken,
+   Drunk, InTheDark, Neutral; every locomotion gait, mirrored), LPN rows
+   (:func:`jaxstyle.mason2022.pipeline.build_data`).
+2. Models: LPN-FiLM at the demo's size (256 hidden units, a FiLM generator of 32 filters and 512
+   dense units), ``--epochs`` epochs at Adam 1e-3 (the demo's rate), one per recipe
+   (:class:`jaxstyle.mason2022.train.LPNTrainConfig`): ``paper`` (the paper's losses),
+   ``noise`` (``input_noise`` 1.0 on the normalised inputs) and ``rollout`` (``rollout_steps``
+   4: windows of 5 frames fed the network's own outputs). Trained models are kept in
+   ``--run/<recipe>`` and reused on a re-run.
+3. Runtime: every training style along ``straight`` and ``circle`` (10 s at its own speed, the
+   path-following law of the quality benchmark), with the paper's runtime (``--phase-floor 0``)
+   and with the default one (local phases floored at
+   :data:`jaxstyle.train.defaults.PHASE_FLOOR` of the style's capture rate).
+4. Measures (:func:`jaxstyle.output.quality.run`, the quality benchmark's): the local phases'
+   advance over the capture's (``phase_rate_ratio``, stalled below
+   :data:`jaxstyle.output.quality.STALL_RATIO`), steps per second after foot locking, raw foot
+   skating of the network's joints, feet on the floor, style distance, each beside the capture;
+   how much the pose moves (the standard deviation over time of the joints' positions in the
+   root's frame, after the first second, in metres).
+
+``--model DIR`` (repeatable) measures already trained models instead (e.g. the paper-size
+``RUN/lpn`` of ``jaxstyle lpn``, reloaded with :func:`jaxstyle.mason2022.synthesis.load_model`, its
+rows cached in ``--run/cache``), each named by its folder, with both runtimes.
+
+Writes ``--run/closed_loop.md`` (the per-row table and the summary per recipe and runtime) and
+``--run/closed_loop.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxstyle.data.folders import PAPER_BASE, available_styles
+from jaxstyle.data.locate import mocap_dir
+from jaxstyle.labels.contacts import estimate_units_per_meter
+from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import synthesis as synthesis2022
+from jaxstyle.output import drive, quality
+from jaxstyle.train.defaults import PHASE_FLOOR
+
+RECIPES = {"paper": {}, "noise": {"input_noise": 1.0}, "rollout": {"rollout_steps": 4}}
+PATHS = ("straight", "circle")
+SECONDS = 10.0
+
+
+def pose_motion_m(positions_TxJx3: np.ndarray, yaw_T: np.ndarray, origin_Tx2: np.ndarray, upm: float,
+                  start: int) -> float:
+    """Mean over joints of the standard deviation over frames ``start:`` of each joint's position
+    in the root's ground frame (metres): 0 for a frozen pose whatever the root does."""
+    p = positions_TxJx3[start:]
+    rel_x, rel_z = p[..., 0] - origin_Tx2[start:, None, 0], p[..., 2] - origin_Tx2[start:, None, 1]
+    c, s = np.cos(-yaw_T[start:])[:, None], np.sin(-yaw_T[start:])[:, None]
+    local = np.stack([c * rel_x + s * rel_z, p[..., 1], -s * rel_x + c * rel_z], axis=-1)
+    return float(local.std(axis=0).mean() / upm)
+
+
+def measure(loaded: synthesis2022.Loaded, styles, recipe: str) -> list[dict]:
+    skeleton = loaded.data.skeleton
+    upm = estimate_units_per_meter(skeleton)
+    chars = synthesis2022.characters(loaded, styles=styles)
+    driven = drive.drive(loaded.character_model(), chars, path_names=PATHS, seconds=SECONDS, units_per_meter=upm,
+                         fps=skeleton.fps)
+    subjects = [quality.subject(c, "base", loaded.model.name) for c in chars]
+    rows = quality.measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton,
+                                    driven.speeds).rows
+    out = jax.tree.map(np.asarray, driven.rollouts)
+    captures = {r["style"]: r for r in rows if r["path"] == "capture"}
+    table = []
+    for k, (i, p) in enumerate(driven.pairs):
+        r = next(r for r in rows if r["style"] == chars[i].title and r["path"] == p)
+        cap = captures[chars[i].title]
+        motion = pose_motion_m(out.positions[k][:, :skeleton.num_joints], out.yaw[k], out.origin[k], upm,
+                               int(skeleton.fps))
+        table.append({"recipe": recipe, "phase_floor": loaded.phase_floor, "style": chars[i].title, "path": p,
+                      "phase_rate_ratio": r["phase_rate_ratio"], "phases_stalled": r["phases_stalled"],
+                      "pose_motion_m": motion, "steps_per_s": r["steps_per_s"],
+                      "capture_steps_per_s": cap["steps_per_s"],
+                      "skating_m_s": r["foot_skating_m_s"], "capture_skating_m_s": cap["foot_skating_m_s"],
+                      "contact_fraction": r["contact_fraction"], "capture_contact_fraction": cap["contact_fraction"],
+                      "style_distance": r["style_distance"]})
+    return table
+
+
+def summary(rows: list[dict]) -> list[str]:
+    lines = ["| recipe | runtime | rows stalled | median phase rate / capture | rows stepping within 25% of "
+             "capture | median steps/s / capture | median raw skating / capture | median style distance m |",
+             "|---|---|---|---|---|---|---|---|"]
+    for recipe in dict.fromkeys(r["recipe"] for r in rows):
+        for floor in dict.fromkeys(r["phase_floor"] for r in rows):
+            mine = [r for r in rows if r["recipe"] == recipe and r["phase_floor"] == floor]
+            steps = np.array([r["steps_per_s"] / r["capture_steps_per_s"] for r in mine])
+            skate = np.array([r["skating_m_s"] / r["capture_skating_m_s"] for r in mine])
+            within = int(np.sum(np.abs(steps - 1) <= 0.25))
+            runtime = "paper (no floor)" if floor == 0 else f"phase floor {floor:g}"
+            lines.append(f"| {recipe} | {runtime} | {sum(bool(r['phases_stalled']) for r in mine)} / {len(mine)} | "
+                         f"{np.median([r['phase_rate_ratio'] for r in mine]):.2f} | {within} / {len(mine)} | "
+                         f"{np.median(steps):.2f} | {np.median(skate):.1f} | "
+                         f"{np.nanmedian([r['style_distance'] for r in mine]):.2f} |")
+    return lines
+
+
+def row_table(rows: list[dict]) -> list[str]:
+    lines = ["| recipe | runtime | style | path | phase rate / capture | pose motion m | steps/s (capture) | "
+             "raw skating m/s (capture) | feet on floor (capture) | style distance m |", "|---|" * 1 + "---|" * 9]
+    for r in rows:
+        runtime = "paper" if r["phase_floor"] == 0 else f"floor {r['phase_floor']:g}"
+        stalled = " stalled" if r["phases_stalled"] else ""
+        lines.append(f"| {r['recipe']} | {runtime} | {r['style']} | {r['path']} | "
+                     f"{r['phase_rate_ratio']:.2f}{stalled} | "
+                     f"{r['pose_motion_m']:.3f} | {r['steps_per_s']:.2f} ({r['capture_steps_per_s']:.2f}) | "
+                     f"{r['skating_m_s']:.2f} ({r['capture_skating_m_s']:.2f}) | {r['contact_fraction']:.2f} "
+                     f"({r['capture_contact_fraction']:.2f}) | {r['style_distance']:.2f} |")
+    return lines
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--data", type=Path, default=None, help="the 100STYLE folder (default $JAXSTYLE_MOCAP/100style)")
+    p.add_argument("--run", type=Path, default=Path("runs/closed_loop"))
+    p.add_argument("--epochs", type=int, default=4)
+    p.add_argument("--recipes", nargs="+", choices=list(RECIPES), default=list(RECIPES))
+    p.add_argument("--model", type=Path, action="append", help="measure this trained model's folder instead")
+    args = p.parse_args(argv)
+    if args.model:
+        t0 = time.perf_counter()
+        rows = []
+        for folder in args.model:
+            loaded = synthesis2022.load_model(folder, cache=args.run / "cache")
+            print(f"{folder}: {loaded.model.name}, {loaded.epochs} epochs, "
+                  f"test MSE {np.mean(pipeline.model_losses(loaded.model)['mse']):.4f}")
+            for floor in (0.0, PHASE_FLOOR):
+                rows += measure(loaded._replace(phase_floor=floor), list(loaded.model.data.styles), str(folder))
+        return report(args, rows, f"the models of {', '.join(map(str, args.model))} ({time.perf_counter() - t0:.0f} s)")
+    root = args.data or mocap_dir() / "100style"
+    styles = [s for s in PAPER_BASE if s in available_styles(root)]
+    t0 = time.perf_counter()
+    data = pipeline.build_data(root, styles, cache=args.run / "cache")
+    config = pipeline.model_config(data.base, hidden=256, generator_hidden=512, filters=32)
+    rows = []
+    for recipe in args.recipes:
+        t1 = time.perf_counter()
+        model = pipeline.train_model(data, config, args.run / recipe, epochs=args.epochs, progress=False,
+                                     learning_rate=1e-3, **RECIPES[recipe])
+        trained = time.perf_counter() - t1
+        losses = pipeline.model_losses(model)
+        print(f"{recipe}: {args.epochs} epochs, {trained:.0f} s (this call), test MSE {np.mean(losses['mse']):.4f}")
+        for floor in (0.0, PHASE_FLOOR):
+            loaded = synthesis2022.Loaded(model, data, args.run / recipe, args.epochs, floor)
+            rows += measure(loaded, styles, recipe)
+    report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
+           f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")
+
+
+def report(args, rows: list[dict], title: str) -> None:
+    lines = [title, "", *summary(rows), "", *row_table(rows)]
+    args.run.mkdir(parents=True, exist_ok=True)
+    (args.run / "closed_loop.md").write_text("\n".join(lines) + "\n")
+    with open(args.run / "closed_loop.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    print("\n".join(lines[:len(summary(rows)) + 2]))
+    print(f"written: {args.run / 'closed_loop.md'}, {args.run / 'closed_loop.csv'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,196 @@
+"""The 2022 closed loop's training remedies: what rollout training feeds the network (the runtime's
+own feed-back, checked against captured rows), its windows, and the local phases' floor."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxstyle.control import lpn_controller
+from jaxstyle.data.lpn_features import LPNLayout
+from jaxstyle.mason2022 import train as train_lpn
+from jaxstyle.nn import film_generator as film
+from jaxstyle.nn.style_models import StyleModelConfig
+
+
+def test_next_rows_and_rollout_starts_match_a_loop():
+    rng = np.random.default_rng(0)
+    clip = np.repeat([0, 1, 2], [7, 5, 6])
+    frame = np.concatenate([np.arange(7), np.r_[0, 1, 2, 4, 5], np.arange(10, 16)])
+    order = rng.permutation(len(clip))
+    clip, frame = clip[order], frame[order]
+    nxt = train_lpn.next_rows(clip, frame)
+    for i in range(len(clip)):
+        want = [j for j in range(len(clip)) if clip[j] == clip[i] and frame[j] == frame[i] + 1]
+        assert nxt[i] == (want[0] if want else -1)
+    rows = np.flatnonzero(~((clip == 2) & (frame == 13)))  # a hole in clip 2
+    for steps in (0, 1, 3):
+        got = train_lpn.rollout_starts(rows, nxt, steps)
+        want = []
+        for r in rows:
+            cur, ok = r, True
+            for _ in range(steps):
+                cur = nxt[cur]
+                ok = ok and cur >= 0 and cur in rows
+                if not ok:
+                    break
+            if ok:
+                want.append(r)
+        np.testing.assert_array_equal(np.sort(got), np.sort(want))
+
+
+@pytest.fixture(scope="module")
+def real(mocap, tmp_path_factory):
+    import jaxstyle as js
+    from jaxstyle.data import datasets
+
+    specs = [s for s in datasets.specs_100style(mocap / "100style", styles=["Neutral", "Rushed"]) if s.gait == "FW"]
+    ds = datasets.build_lpn_dataset(specs, cache_dir=tmp_path_factory.mktemp("cache"))
+    return ds, js.read_bvh(specs[0].path)
+
+
+def test_fed_back_captured_output_is_the_captured_next_input(real):
+    """Fed the captured output row, the runtime's feed-back gives the captured next frame's joint
+    features and local phases: rollout training and the closed loop read the layout right."""
+    ds, _ = real
+    layout = LPNLayout.of_inputs(ds.inputs.shape[1])
+    j0 = layout.input_groups["joint_position"].start
+    nxt = train_lpn.next_rows(ds.clip, ds.frame)
+    rows = np.flatnonzero(nxt >= 0)[::97]
+    _, joints, phases = jax.vmap(lpn_controller.feed_back, in_axes=(0, 0, 0, None))(
+        jnp.asarray(ds.inputs[rows, j0:], jnp.float32), jnp.asarray(ds.phases[rows], jnp.float32),
+        jnp.asarray(ds.outputs[rows], jnp.float32), layout.num_bones)
+    scale = np.abs(ds.inputs[:, j0:]).max()
+    np.testing.assert_allclose(np.asarray(joints), ds.inputs[nxt[rows], j0:], atol=1e-6 * scale)
+    np.testing.assert_allclose(np.asarray(phases), ds.phases[nxt[rows]], atol=1e-5)
+    # a wrong layout would not: the next frame's features differ from this frame's
+    assert np.abs(ds.inputs[rows, j0:] - ds.inputs[nxt[rows], j0:]).max() > 1e-3 * scale
+
+
+def _tiny(num_styles):
+    return StyleModelConfig(num_styles=num_styles, hidden_size=16, num_experts=2, gating_hidden=8,
+                            generator=film.FiLMConfig(filters=4, width=5, hidden=16, film_size=64))
+
+
+def test_rollout_loss_feeds_the_network_what_the_runtime_would(real):
+    """Step 0 is batch_loss; step 1's input is the runtime's next input (lpn_controller.advance
+    from a state at the captured row, the captured trajectory, the network's own joints and phases)."""
+    ds, skeleton = real
+    data = train_lpn.style_data(ds, skeleton)
+    mc = _tiny(len(ds.styles))
+    params = jax.tree.map(lambda v: v + 0.05 * jnp.sin(jnp.arange(v.size).reshape(v.shape) * 1.7),
+                          train_lpn.init_state(jax.random.PRNGKey(1), train_lpn.LPNTrainConfig(model=mc))["params"])
+    arrays = tuple(jnp.asarray(a) for a in (data.x, data.y, data.gate, data.clips))
+    feedback = (jnp.asarray(np.maximum(data.next_row, 0)), *(jnp.asarray(a) for a in data.stats))
+    idx = jnp.asarray(train_lpn.rollout_starts(data.train_rows[0], data.next_row, 1)[:8])
+    key, clip, bones = jax.random.PRNGKey(3), int(data.train_clips[0][0]), data.bones
+    zero = jnp.float32(0.0)
+    def rollout_loss(steps):  # jitted: eager it takes seconds
+        return jax.jit(lambda p: train_lpn.rollout_loss(p, mc, arrays, feedback, idx, 0, clip, key, zero, bones, 1.0,
+                                                        steps=steps))(params)
+
+    l0, (m0, b0) = rollout_loss(0)
+    lb, (mb, bb) = train_lpn.batch_loss(params, mc, arrays, idx, 0, clip, key, zero, bones, 1.0)
+    np.testing.assert_allclose([l0, m0, b0], [lb, mb, bb], rtol=1e-6)
+
+    # the reference second frame, built by the runtime's advance from the de-normalised row
+    from jaxstyle.nn import style_models
+
+    xm, xs, ym, ys = (np.asarray(a) for a in data.stats)
+    style = train_lpn._style(params, mc, arrays[3], 0, clip, None, zero)
+    y0 = style_models.model_apply(params, mc, arrays[0][idx], arrays[2][idx], style) * ys + ym
+    j0 = LPNLayout.of_inputs(data.x.shape[1]).input_groups["joint_position"].start
+    second_x, second_gate = [], []
+    advance = jax.jit(lpn_controller.advance, static_argnums=2)
+    for b, r in enumerate(np.asarray(idx)):
+        state = lpn_controller.initial_state(data.x[r] * xs + xm, data.gate[r], (data.x.shape[1] - 48) // 12)
+        nxt_state, _ = advance(state, y0[b], (data.x.shape[1] - 48) // 12)
+        joints_n = (np.asarray(nxt_state.joints) - xm[j0:]) / xs[j0:]
+        second_x.append(np.concatenate([data.x[data.next_row[r], :j0], joints_n]))
+        second_gate.append(np.asarray(nxt_state.phases))
+    y1 = style_models.model_apply(params, mc, jnp.asarray(np.stack(second_x)), jnp.asarray(np.stack(second_gate)),
+                                  style)
+    m1, b1 = train_lpn.losses(y1, arrays[1][np.asarray(data.next_row)[np.asarray(idx)]], bones)
+    l1, (mse1, bll1) = rollout_loss(1)
+    np.testing.assert_allclose([mse1, bll1], [(m0 + m1) / 2, (b0 + b1) / 2], rtol=2e-4)
+    np.testing.assert_allclose(l1, (m0 + b0 + m1 + b1) / 2, rtol=2e-4)
+    assert abs(float(m1) - float(mb)) > 1e-6  # the second frame is a different loss
+
+
+def test_floored_phases():
+    p0 = np.array([0.0, 1.0, 0.0, 2.0, 1e-9, 0.0, 0.0, 1.0], np.float32)  # (sin, cos) per limb
+    fast = np.array([np.sin(0.3), np.cos(0.3), 0.0, 2.0, 0.0, 1.0, 0.0, 1.0], np.float32)
+    out = np.asarray(lpn_controller.floored_phases(jnp.asarray(p0), jnp.asarray(fast), 0.02))
+    a = 2 * np.pi * 0.02
+    np.testing.assert_allclose(out[:2], fast[:2], atol=1e-7)  # advanced 0.048 cycles > floor: kept
+    np.testing.assert_allclose(out[2:4], [2 * np.sin(a), 2 * np.cos(a)], atol=1e-6)  # stalled: moved on
+    np.testing.assert_allclose(out[4:6], fast[4:6])  # no angle to move on: kept
+    np.testing.assert_allclose(out[6:8], [np.sin(a), np.cos(a)], atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(lpn_controller.floored_phases(jnp.asarray(p0), jnp.asarray(fast), 0.0)),
+                                  fast)
+
+
+def test_a_tiny_lpn_on_a_periodic_gait_keeps_stepping_for_10_s(tmp_path):
+    """A tiny LPN-FiLM (5 epochs) on synthetic periodic walks: with the paper's runtime its closed
+    loop stalls and the quality rows say so; with the default runtime (local phases floored at
+    PHASE_FLOOR of the capture's rate) the phases keep advancing for the whole 10 s and the
+    characters lift their feet."""
+    from jaxstyle.data import procedural
+    from jaxstyle.labels.contacts import estimate_units_per_meter
+    from jaxstyle.mason2022 import pipeline
+    from jaxstyle.mason2022 import synthesis as synthesis2022
+    from jaxstyle.output import drive, quality
+    from jaxstyle.train.defaults import PHASE_FLOOR
+
+    styles = ["Neutral", "Crouched"]
+    root = procedural.write_dataset(tmp_path / "data", styles=styles, gaits=("FW",), seconds=12, progress=False)
+    data = pipeline.build_data(root, styles, cache=tmp_path / "cache")
+    config = pipeline.model_config(data.base, hidden=32, generator_hidden=16, filters=4)
+    model = pipeline.train_model(data, config, tmp_path / "lpn", epochs=5, progress=False, learning_rate=1e-3)
+    skeleton = data.skeleton
+    upm = estimate_units_per_meter(skeleton)
+    rows = {}
+    for floor in (0.0, PHASE_FLOOR):
+        loaded = synthesis2022.Loaded(model, data, tmp_path / "lpn", 5, floor)
+        chars = synthesis2022.characters(loaded, styles=styles)
+        driven = drive.drive(loaded.character_model(), chars, path_names=["straight"], seconds=10.0,
+                             units_per_meter=upm, fps=skeleton.fps)
+        subjects = [quality.subject(c, "base", "LPN FiLM") for c in chars]
+        out = quality.measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton, driven.speeds)
+        rows[floor] = {(r["style"], r["path"]): r for r in out.rows}
+        phases = np.asarray(driven.rollouts.phases)  # (characters, 600, 8)
+        assert phases.shape[1] == 600
+        if floor:  # every second of the 10 s advances: no late stall
+            for c, name in enumerate(styles):
+                capture = lpn_controller.capture_phase_rate(data.base, name)
+                per_frame = lpn_controller.local_phase_advance(phases[c, :-1], phases[c, 1:])
+                per_second = per_frame[: 540].reshape(9, 60).sum(axis=1) / 60
+                assert per_second.min() >= 0.7 * capture, (name, per_second / capture)
+    for name in styles:
+        paper, floored = rows[0.0][(name, "straight")], rows[PHASE_FLOOR][(name, "straight")]
+        assert paper["phases_stalled"] is True and paper["phase_rate_ratio"] < quality.STALL_RATIO
+        assert floored["phases_stalled"] is False and floored["phase_rate_ratio"] >= 0.74
+    capture = rows[PHASE_FLOOR][("Neutral", "capture")]["steps_per_s"]
+    assert rows[PHASE_FLOOR][("Neutral", "straight")]["steps_per_s"] > 0.5 * capture
+    assert rows[0.0][("Neutral", "straight")]["steps_per_s"] < 0.25 * capture
+    table = "\n".join(quality.table(list(rows[0.0].values())))
+    assert table.count(quality.STALLED_MARK) == 2
+    assert quality.STALLED_MARK not in "\n".join(quality.table(list(rows[PHASE_FLOOR].values())))
+
+
+def test_pose_motion_is_zero_for_a_frozen_pose_whatever_the_root_does():
+    from experiments.mason2022_closed_loop import pose_motion_m
+
+    rng = np.random.default_rng(0)
+    pose = rng.normal(size=(5, 3))  # joints in the root frame
+    t = np.arange(100)
+    yaw, origin = 0.03 * t, np.stack([0.5 * t, np.sin(t / 9.0)], axis=1)
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    world = np.stack([c * pose[None, :, 0] + s * pose[None, :, 2] + origin[:, None, 0],
+                      np.broadcast_to(pose[:, 1], (100, 5)),
+                      -s * pose[None, :, 0] + c * pose[None, :, 2] + origin[:, None, 1]], axis=-1)
+    assert pose_motion_m(world, yaw, origin, 100.0, 10) < 1e-9
+    swing = world.copy()
+    swing[:, 0, 1] += 10.0 * np.sin(t / 5.0)  # one joint bobs 10 units = 0.1 m
+    want = np.std(10.0 * np.sin(t[10:] / 5.0)) / 15 / 100.0  # mean over 5 joints x 3 axes, in metres
+    np.testing.assert_allclose(pose_motion_m(swing, yaw, origin, 100.0, 10), want, rtol=1e-9)
