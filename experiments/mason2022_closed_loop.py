@@ -27,7 +27,9 @@ Protocol (fixed):
 
 ``--model DIR`` (repeatable) measures already trained models instead (e.g. the paper-size
 ``RUN/lpn`` of ``jaxstyle lpn``, reloaded with :func:`jaxstyle.mason2022.synthesis.load_model`, its
-rows cached in ``--run/cache``), each named by its folder, with both runtimes.
+rows cached in ``--run/cache``), each named by its folder, with both runtimes: its training styles
+and the new styles its FiLM generator was fine-tuned on (at their chosen rates, a failed check
+included and marked).
 
 Writes ``--run/closed_loop.md`` (the per-row table and the summary per recipe and runtime) and
 ``--run/closed_loop.csv``.
@@ -37,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import time
 from pathlib import Path
 
@@ -67,10 +70,10 @@ def pose_motion_m(positions_TxJx3: np.ndarray, yaw_T: np.ndarray, origin_Tx2: np
     return float(local.std(axis=0).mean() / upm)
 
 
-def measure(loaded: synthesis2022.Loaded, styles, recipe: str) -> list[dict]:
+def measure(loaded: synthesis2022.Loaded, styles, recipe: str, new_styles=()) -> list[dict]:
     skeleton = loaded.data.skeleton
     upm = estimate_units_per_meter(skeleton)
-    chars = synthesis2022.characters(loaded, styles=styles)
+    chars = synthesis2022.characters(loaded, styles=styles, new_styles=new_styles, allow_failed=True)
     driven = drive.drive(loaded.character_model(), chars, path_names=PATHS, seconds=SECONDS, units_per_meter=upm,
                          fps=skeleton.fps)
     subjects = [quality.subject(c, "base", loaded.model.name) for c in chars]
@@ -141,8 +144,10 @@ def main(argv=None) -> None:
             loaded = synthesis2022.load_model(folder, cache=args.run / "cache")
             print(f"{folder}: {loaded.model.name}, {loaded.epochs} epochs, "
                   f"test MSE {np.mean(pipeline.model_losses(loaded.model)['mse']):.4f}")
+            chosen = Path(folder) / "chosen_rates.json"
+            new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
             for floor in (0.0, PHASE_FLOOR):
-                rows += measure(loaded._replace(phase_floor=floor), list(loaded.model.data.styles), str(folder))
+                rows += measure(loaded._replace(phase_floor=floor), list(loaded.model.data.styles), str(folder), new)
         return report(args, rows, f"the models of {', '.join(map(str, args.model))} ({time.perf_counter() - t0:.0f} s)")
     root = args.data or mocap_dir() / "100style"
     styles = [s for s in PAPER_BASE if s in available_styles(root)]

@@ -110,6 +110,8 @@ def test_two_process_sweep_equals_the_one_process_sweep(base_run, tmp_path):
     assert snapshot(other) == before  # process 1 read its base and wrote nothing
 
 
+@pytest.mark.slow  # python -m pytest -m slow: the default run checks two processes on the sweep (above) and the
+# LPN's sharded step in one process (test_lpn_sharded.py); this one adds two more JAX processes on 2 cores
 def test_two_process_lpn_training_equals_the_one_process_run(base_run, tmp_path):
     data, _ = base_run
     port = free_port()

@@ -133,6 +133,11 @@ def test_synthesize_drives_characters_and_blends_with_the_2018_metrics(loaded, t
     with open(tmp_path / "quality.csv") as f:
         assert len(list(csv.DictReader(f))) == len(out.rows)
     assert quality_table(out.rows)[2].startswith(f"| {a.title} | straight | ")
+    # the style distance to the character's capture (jaxstyle.output.style; its numerics: test_style.py);
+    # 1 s holds no whole stride, so the gait term and the total are NaN ("n/a"), the pose term is not
+    assert "style_distance" in row and np.isfinite(row["style_pose_m"]) and row["style_pose_m"] > 0
+    assert "phase_rate_ratio" in row
+    assert quality_table(out.rows)[0].endswith("| style distance m (shows) |")
 
 
 def test_cli_synthesize_model_lpn_film(run_dir, capsys):

@@ -112,19 +112,30 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
         drawn[(s.title, p)] = (e.net if e.locked is None else e.locked, signals[k].positions)
         row = measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         # the steps of the locked skeleton (what is drawn) are measure's, not counted again
-        shown = style.style_stats(drawn[(s.title, p)][0], skeleton, signals[k].fps, units_per_meter=upm,
-                                  cadence=row.get("steps_per_s") if e.locked is not None else None)
-        fidelity = style.style_distance(shown, captures[i].stats)
-        cap_range = captures[i].stats.wrist_range_m  # how much of the capture's arm movement is kept
-        fidelity["wrist_range_ratio"] = shown.wrist_range_m / cap_range if cap_range > 0 else float("nan")
-        # Neutral is the reference itself: whether it "shows" has no meaning (blank)
-        fidelity["style_shows"] = (None if captures[i] is neutral
-                                   else style.shows(fidelity["style_distance"], captures[i].to(neutral)))
+        fidelity = style_figures(drawn[(s.title, p)][0], skeleton, signals[k].fps, upm, captures[i], neutral,
+                                 cadence=row.get("steps_per_s") if e.locked is not None else None)
         results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row,
                         **fidelity, **phase_figures(one, signals[k], s)})
     for s, c in zip(subjects, captures, strict=True):
         results.append(capture_row(s, c, neutral))
     return Measured(results, drawn)
+
+
+def style_figures(positions_TxJx3: np.ndarray, skeleton: Motion, fps: float, units_per_meter: float,
+                  capture: CaptureStyle, neutral: CaptureStyle | None, *, cadence: float | None = None) -> dict:
+    """A drawn character's style fidelity against its ``capture``
+    (:func:`jaxstyle.output.style.style_distance`: ``style_distance`` and its groups, in metres),
+    ``wrist_range_ratio`` (its wrists' up-and-down range over the capture's) and ``style_shows``
+    (:func:`jaxstyle.output.style.shows` against the capture's distance to ``neutral``; blank for
+    Neutral itself, the reference; False without a Neutral capture). ``cadence``: steps per second already counted
+    on the same positions."""
+    shown = style.style_stats(positions_TxJx3, skeleton, fps, units_per_meter=units_per_meter, cadence=cadence)
+    fidelity = style.style_distance(shown, capture.stats)
+    cap_range = capture.stats.wrist_range_m  # how much of the capture's arm movement is kept
+    fidelity["wrist_range_ratio"] = shown.wrist_range_m / cap_range if cap_range > 0 else float("nan")
+    fidelity["style_shows"] = (None if capture is neutral
+                               else style.shows(fidelity["style_distance"], capture.to(neutral)))
+    return fidelity
 
 
 STALLED_MARK = "[PHASES STALLED]"

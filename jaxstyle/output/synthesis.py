@@ -149,6 +149,13 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
         if options.contact_sheet and p == path_names[0]:
             files.append(preview.contact_sheet(out / "contact_sheet.png", chars, skeleton.parents, frames=6,
                                                titles=titles, paths=path_xz, units_per_meter=upm, fps=fps))
+    # each character's capture, once per (dataset, style), and Neutral's: the style distance's references
+    captures = {}
+    for c in characters:
+        if (id(c.dataset), c.style) not in captures:
+            captures[(id(c.dataset), c.style)] = quality.CaptureStyle.of(c.dataset, c.style)
+    of = [captures[(id(c.dataset), c.style)] for c in characters]
+    neutral = quality.neutral_capture(characters, of)
     for k, (s, p) in enumerate(pairs):
         one, e = ones[k], shown[k]
         c = characters[s]
@@ -158,6 +165,9 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
         measured = measure.measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         row.update({key: measured.get(key, float("nan")) for key in EXPORTED_FIGURES})
         row.update(quality.phase_figures(one, signals[k], c))  # a 2022 character whose phases stalled
+        row.update(quality.style_figures(drawn(e), skeleton, fps, upm, of[s], neutral,
+                                         cadence=row.get("steps_per_s") if e.locked is not None and foot_lock
+                                         else None))
         if e.lock is not None:
             motion = e.lock.motion if foot_lock else export.rollout_motion(one, skeleton)
             files += export.save_rollout(out / "bvh" / f"{c.label}_{p}", one, skeleton, motion=motion).values()
@@ -206,12 +216,15 @@ def quality_table(rows: list[dict]) -> list[str]:
     """Markdown lines of the main quality figures: skating of the network's own joints, of the
     exported BVH's skeleton and of that skeleton after foot locking (what the BVH files hold by
     default), steps per second and stance fraction after locking, how far the lock moved a foot,
-    bone error of the network's joints and of the BVH, path error, time to stop, jitter
-    (:func:`write_results`). A 2022 character whose local phases stalled has its path marked
+    bone error of the network's joints and of the BVH, path error, time to stop, jitter, and the
+    style distance to the character's capture with whether the style shows
+    (:func:`jaxstyle.output.quality.style_figures`, on what is drawn; :func:`write_results`). A
+    2022 character whose local phases stalled has its path marked
     :data:`jaxstyle.output.quality.STALLED_MARK` (:func:`jaxstyle.output.quality.phase_figures`)."""
     lines = ["| style | path | skating m/s network / BVH / locked | steps/s | stance | foot offset m "
-             "| bone error network mean / max / BVH max | path error mean / final m | stop s | jitter m/s^3 |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| bone error network mean / max / BVH max | path error mean / final m | stop s | jitter m/s^3 "
+             "| style distance m (shows) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         g = r.get
         path = r["path"] + (f" {quality.STALLED_MARK}" if g("phases_stalled") in (True, "True") else "")
@@ -221,5 +234,15 @@ def quality_table(rows: list[dict]) -> list[str]:
                      f"| {_f(100 * r['bone_error_mean'], 1)}% / {_f(100 * r['bone_error_max'], 0)}% / "
                      f"{_f(100 * float(g('bone_error_bvh_max', 'nan')), 0)}% "
                      f"| {_f(g('path_error_mean_m'))} / {_f(g('path_error_final_m'))} | {_f(g('stop_time_s'))} "
-                     f"| {_f(g('jitter_m_s3'), 0)} |")
+                     f"| {_f(g('jitter_m_s3'), 0)} | {_style(r)} |")
     return lines
+
+
+def _style(r: dict) -> str:
+    """The style distance cell: the distance to the capture and whether the style shows (blank
+    for a real clip's row and for Neutral, the reference)."""
+    d, shows = r.get("style_distance"), r.get("style_shows")
+    if d is None or d == "":
+        return ""
+    mark = "" if shows is None or shows == "" else (" (shows)" if shows in (True, "True") else " (no)")
+    return f"{_f(d)}{mark}"
