@@ -135,11 +135,16 @@ def local_phase_advance(p0_8: jax.Array, p1_8: jax.Array) -> jax.Array:
     scaled by amplitude), the angle of ``sum_b conj(z0_b) z1_b`` with ``z = cos + i sin``. Works on
     numpy and JAX arrays (leading axes broadcast)."""
     xp = jnp if isinstance(p0_8, jax.Array) or isinstance(p1_8, jax.Array) else np
+    cross, dot = _limb_products(p0_8, p1_8)
+    return xp.arctan2(cross.sum(-1), dot.sum(-1)) / (2.0 * np.pi)
+
+
+def _limb_products(p0_8, p1_8):
+    """Per limb ``(..., 4)``: ``Im`` and ``Re`` of ``conj(z0) z1`` with ``z = cos + i sin`` of each
+    limb's (sin, cos) pair of ``p0`` and ``p1`` (numpy or JAX, leading axes broadcast)."""
     a = p0_8.reshape(p0_8.shape[:-1] + (NUM_PHASE_FEATURES // 2, 2))
     b = p1_8.reshape(p1_8.shape[:-1] + (NUM_PHASE_FEATURES // 2, 2))
-    cross = (a[..., 1] * b[..., 0] - a[..., 0] * b[..., 1]).sum(-1)  # Im(conj(z0) z1), z = cos + i sin
-    dot = (a[..., 1] * b[..., 1] + a[..., 0] * b[..., 0]).sum(-1)
-    return xp.arctan2(cross, dot) / (2.0 * np.pi)
+    return a[..., 1] * b[..., 0] - a[..., 0] * b[..., 1], a[..., 1] * b[..., 1] + a[..., 0] * b[..., 0]
 
 
 def predicted_advance(y_O: jax.Array, num_bones: int) -> jax.Array:
@@ -166,9 +171,7 @@ def floored_phases(p0_8: jax.Array, p1_8: jax.Array, floor) -> jax.Array:
     experts keep cycling; the network still sets each limb's amplitude and any faster advance."""
     a = p0_8.reshape(NUM_PHASE_FEATURES // 2, 2)
     b = p1_8.reshape(NUM_PHASE_FEATURES // 2, 2)
-    cross = a[:, 1] * b[:, 0] - a[:, 0] * b[:, 1]
-    dot = a[:, 1] * b[:, 1] + a[:, 0] * b[:, 0]
-    advance_b = jnp.arctan2(cross, dot) / (2.0 * np.pi)
+    advance_b = jnp.arctan2(*_limb_products(p0_8, p1_8)) / (2.0 * np.pi)
     r0 = jnp.linalg.norm(a, axis=-1)
     r1 = jnp.linalg.norm(b, axis=-1)
     angle = jnp.arctan2(a[:, 0], a[:, 1]) + 2.0 * np.pi * floor

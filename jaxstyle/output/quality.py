@@ -103,6 +103,7 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
     out = jax.tree.map(np.asarray, rollouts)
     floor = footlock.skeleton_floor(skeleton)  # one skeleton for the whole batch
     captures = [CaptureStyle.of(s.dataset, s.style) for s in subjects]
+    rates = [capture_rate(s) for s in subjects]  # once per subject, not per path
     neutral = neutral_capture(subjects, captures)
     results, drawn = [], {}
     for k, (i, p) in enumerate(pairs):
@@ -115,7 +116,7 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
         fidelity = style_figures(drawn[(s.title, p)][0], skeleton, signals[k].fps, upm, captures[i], neutral,
                                  cadence=row.get("steps_per_s") if e.locked is not None else None)
         results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row,
-                        **fidelity, **phase_figures(one, signals[k], s)})
+                        **fidelity, **phase_figures(one, signals[k], rates[i])})
     for s, c in zip(subjects, captures, strict=True):
         results.append(capture_row(s, c, neutral))
     return Measured(results, drawn)
@@ -147,19 +148,31 @@ they advance at under this fraction of its style's capture rate (a quarter: a ch
 at its capture's pace within the 25% the benchmark allows never comes near it)."""
 
 
-def phase_figures(rollout, signal: paths.PathSignal, subject: Subject) -> dict:
+def capture_rate(character) -> float:
+    """The local phases' median advance per frame in the capture of ``character``'s style
+    (anything with ``dataset`` and ``style``; :func:`jaxstyle.control.lpn_controller.capture_phase_rate`;
+    0 for a dataset without local phases, whose rollouts :func:`phase_figures` leaves out)."""
+    from jaxstyle.control.lpn_controller import capture_phase_rate
+
+    phases = np.asarray(getattr(character.dataset, "phases", np.zeros((0, 0))))
+    if phases.ndim != 2 or phases.shape[1:] != (8,):
+        return 0.0
+    return capture_phase_rate(character.dataset, character.style)
+
+
+def phase_figures(rollout, signal: paths.PathSignal, capture_rate: float) -> dict:
     """For a model carrying local phases (the 2022 LPN-layout rollouts, ``phases (T, 8)``): the
     median advance of its phases per frame over the frames after the first second where the path
-    asks it to move, as a fraction of its style's capture rate
-    (:func:`jaxstyle.control.lpn_controller.capture_phase_rate`), ``phase_rate_ratio``, and
+    asks it to move, as a fraction of its style's ``capture_rate`` (cycles per frame,
+    :func:`capture_rate`), ``phase_rate_ratio``, and
     ``phases_stalled`` (below :data:`STALL_RATIO`: the closed loop froze and the character glides).
     Empty for other models."""
-    from jaxstyle.control.lpn_controller import capture_phase_rate, local_phase_advance
+    from jaxstyle.control.lpn_controller import local_phase_advance
 
     phases = np.asarray(getattr(rollout, "phases", np.zeros((0, 0))))
     if phases.ndim != 2 or phases.shape[1] != 8 or len(phases) < 3:
         return {}
-    capture = capture_phase_rate(subject.dataset, subject.style)
+    capture = capture_rate
     start = int(round(signal.fps))
     moving = np.hypot(*np.asarray(signal.velocity, np.float64).T)[1:] > 1e-6
     advance = local_phase_advance(np.asarray(phases[:-1], np.float64), np.asarray(phases[1:], np.float64))
@@ -208,9 +221,9 @@ class CaptureStyle(NamedTuple):
     halves: float
 
     @classmethod
-    def of(cls, dataset: datasets.Dataset, name: str) -> CaptureStyle:
+    def of(cls, dataset: datasets.Dataset, name: str, fps: float = 60.0) -> CaptureStyle:
         spec = capture_spec(dataset, name)
-        clip = datasets.load_clip(spec, fps=60.0)
+        clip = datasets.load_clip(spec, fps=fps)
         pos = global_positions(clip)
         return cls(spec, clip, style.style_stats(pos, clip, clip.fps), style.halves_distance(pos, clip, clip.fps))
 

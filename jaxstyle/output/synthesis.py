@@ -28,7 +28,6 @@ import jax
 import numpy as np
 
 from jaxstyle.control.model import CharacterModel
-from jaxstyle.data import datasets
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.output import drive, export, footlock, measure, metrics, preview, quality
@@ -149,12 +148,15 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
         if options.contact_sheet and p == path_names[0]:
             files.append(preview.contact_sheet(out / "contact_sheet.png", chars, skeleton.parents, frames=6,
                                                titles=titles, paths=path_xz, units_per_meter=upm, fps=fps))
-    # each character's capture, once per (dataset, style), and Neutral's: the style distance's references
+    # each character's capture (and its phase rate), once per (dataset, style), and Neutral's: the
+    # style distance's references; the real clips' rows below read the same clips
     captures = {}
     for c in characters:
         if (id(c.dataset), c.style) not in captures:
-            captures[(id(c.dataset), c.style)] = quality.CaptureStyle.of(c.dataset, c.style)
-    of = [captures[(id(c.dataset), c.style)] for c in characters]
+            captures[(id(c.dataset), c.style)] = (quality.CaptureStyle.of(c.dataset, c.style, fps),
+                                                  quality.capture_rate(c))
+    of = [captures[(id(c.dataset), c.style)][0] for c in characters]
+    rates = [captures[(id(c.dataset), c.style)][1] for c in characters]
     neutral = quality.neutral_capture(characters, of)
     for k, (s, p) in enumerate(pairs):
         one, e = ones[k], shown[k]
@@ -164,7 +166,7 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
         row = {"style": c.title, "path": p, "foot_lock": bool(foot_lock), **q.as_row()}
         measured = measure.measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         row.update({key: measured.get(key, float("nan")) for key in EXPORTED_FIGURES})
-        row.update(quality.phase_figures(one, signals[k], c))  # a 2022 character whose phases stalled
+        row.update(quality.phase_figures(one, signals[k], rates[s]))  # a 2022 character whose phases stalled
         row.update(quality.style_figures(drawn(e), skeleton, fps, upm, of[s], neutral,
                                          cadence=row.get("steps_per_s") if e.locked is not None and foot_lock
                                          else None))
@@ -174,16 +176,13 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
         rows.append(row)
     if options.reference:
         seen = set()
-        for c in characters:
-            key = (id(c.dataset), c.style)
-            if key in seen:
+        for c, capture in zip(characters, of, strict=True):
+            if id(capture) in seen:
                 continue
-            seen.add(key)
-            spec = quality.capture_spec(c.dataset, c.style)
-            clip = datasets.load_clip(spec, fps=fps)
-            q = metrics.reference_quality(clip, units_per_meter=upm)
-            real = measure.capture_figures(clip)
-            rows.append({"style": c.title, "path": f"real ({Path(spec.path).name})", **q.as_row(),
+            seen.add(id(capture))
+            q = metrics.reference_quality(capture.clip, units_per_meter=upm)
+            real = measure.capture_figures(capture.clip)
+            rows.append({"style": c.title, "path": f"real ({Path(capture.spec.path).name})", **q.as_row(),
                          **{key: real[key] for key in EXPORTED_FIGURES}})
     files.append(write_quality(rows, out / "quality.csv"))
     return rows, files
