@@ -92,23 +92,18 @@ def main() -> None:
              f"(data ready after {(time.perf_counter() - t_start) / 60:.1f} min), split evenly over the {jobs} jobs "
              f"left as each starts; at most {args.max_epochs} epochs, early stop when validation has flattened", ""]
     print("\n".join(lines), flush=True)
-    runs: dict[str, pipeline.BudgetRun] = {}
-    results, logs = {}, {}
-    for i, name in enumerate(args.models):
-        share = max(0.0, (deadline - time.perf_counter()) / (jobs - i))
-        config = pipeline.model_config(data.base, name, hidden=args.hidden, generator_hidden=args.generator_hidden,
-                                       filters=args.filters)
-        run = pipeline.train_for(data, config, args.out / name.replace(" ", "_"),
-                                 pipeline.Budget(share, max_epochs=args.max_epochs), name=name, progress=show)
-        runs[name] = run
-        logs[name] = pipeline.read_log(args.out / name.replace(" ", "_"))
-        results[name] = pipeline.model_losses(run.model)
-        print(f"{name}: {run.epochs} epochs ({run.stopped}) in {run.seconds / 60:.1f} min of a {share / 60:.1f} min "
-              f"share; validation MSE {logs[name]['val_mse'][-1]:.4f}; test MSE {np.mean(results[name]['mse']):.4f}",
-              flush=True)
-        partial = lines + report.budget_table(runs, logs) + [""] + report.models_table(data.base.styles, results)
+
+    def after_each(name: str, done: pipeline.ModelRuns) -> None:
+        print(report.model_line(name, done), flush=True)
+        partial = lines + report.budget_table(done.runs, done.logs) + [""] + report.models_table(data.base.styles,
+                                                                                                 done.results)
         (args.out / "results.md").write_text("\n".join(partial) + "\n\n(partial: the run goes on)\n")
-        report.curves_figure(logs, args.out / "curves.png")
+        report.curves_figure(done.logs, args.out / "curves.png")
+
+    runs, logs, results = pipeline.train_models(data, args.models, args.out, deadline, jobs_after=int(tune_new),
+                                                max_epochs=args.max_epochs, hidden=args.hidden,
+                                                generator_hidden=args.generator_hidden, filters=args.filters,
+                                                progress=show, after_each=after_each)
     lines += report.budget_table(runs, logs)
     lines += ["", "Test rows, dropout off: mean over styles, then per style MSE / BLL:", ""]
     lines += report.models_table(data.base.styles, results)

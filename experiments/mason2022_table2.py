@@ -1,7 +1,9 @@
 """Table 2 of Mason, Starke & Komura 2022: parameter counts and per-frame runtime of the seven
-style models, at the paper's sizes (95 styles), beside the paper's numbers.
+style models, at the paper's sizes (95 styles), beside the paper's numbers; with ``--train``, the
+seven models trained at a size that fits a 2-core CPU, tested and driven in the closed loop.
 
     python experiments/mason2022_table2.py [--calls 200] [--runs 5] [--no-runtime]
+    python experiments/mason2022_table2.py --train [--epochs 20] [--out runs/table2]
 
 A.S.N. (animation synthesis network), S.M.N. (style modulation network) and P.S.R. (parameters
 per style at runtime) come from the formulas of ``jaxstyle.nn.style_models`` (tested to equal the
@@ -9,6 +11,30 @@ sizes of the initialised parameter trees). Runtime: one frame at batch 1 on this
 default JAX device, FiLM parameters precomputed (the network call only, not the controller),
 as the mean and standard deviation over ``--runs`` runs of the average over ``--calls`` calls,
 as in the paper (which timed its own C# runtime on its own CPU). No motion capture needed.
+
+``--train`` (the CPU scale; the paper trains 512 hidden units and a generator of 256 filters and
+2048 dense units for 90 epochs at 1e-4 on 95 styles, on a GPU):
+
+1. Data: the paper's base styles of the shared 100STYLE sample
+   (:data:`jaxstyle.data.folders.PAPER_BASE`: Angry, Chicken, Drunk, InTheDark, Neutral; every
+   locomotion gait, mirrored; :func:`jaxstyle.mason2022.pipeline.build_data`), or ``--styles``
+   of ``--data``.
+2. Models: all seven at the demo's size (``--hidden`` 256 units, a FiLM generator of ``--filters``
+   32 filters and ``--generator-hidden`` 512 dense units), Adam at ``--learning-rate`` 1e-3 (the
+   demo's: at 1e-4 a few epochs leave every model standing still), ``--epochs`` epochs each, as the
+   paper gives every model the same epochs (a wall-clock budget, as in
+   ``experiments/mason2022_styles.py``, would favour the cheaper models and change with the
+   machine's load). Trained models are kept in ``--out/<model>`` and resumed or reloaded.
+3. Test: normalised MSE and bone-length loss per style on the test rows, and the paper's claims
+   about its Figure 10 (:func:`jaxstyle.mason2022.report.ordering_lines`).
+4. Closed loop: every training style along ``straight`` and ``circle`` for 10 s at its own speed
+   (:func:`jaxstyle.mason2022.synthesis.measure_quality`, the quality benchmark's protocol) with
+   each runtime of ``--phase-floors`` (0: the paper's; the default floor,
+   :data:`jaxstyle.train.defaults.PHASE_FLOOR`), summarised per model
+   (:func:`jaxstyle.mason2022.report.closed_loop_figures`) with the verdicts of
+   :func:`jaxstyle.mason2022.report.closed_loop_ordering_lines`.
+
+Writes ``--out/table2.md`` and ``--out/closed_loop.csv`` (every row of the quality benchmark).
 """
 
 from __future__ import annotations
@@ -17,6 +43,8 @@ import argparse
 import dataclasses
 import os
 import platform
+import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -25,6 +53,7 @@ from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import TABLE2, StyleModelConfig
 from jaxstyle.timing import time_call
+from jaxstyle.train.defaults import PHASE_FLOOR
 
 # the paper's Table 2: A.S.N., S.M.N., P.S.R., runtime mean and std (ms)
 PAPER = {"PFNN One-hot": (2_436_380, 194_560, 2048, 0.78, 0.01),
@@ -55,12 +84,94 @@ def runtime_ms(config: StyleModelConfig, calls: int, runs: int) -> tuple[float, 
     return mean * 1e3, std * 1e3
 
 
+ORDER = ("PFNN One-hot", "LPN One-hot", "PFNN Resad", "LPN Resad", "PFNN FiLM", "MANN FiLM", "LPN FiLM")
+PATHS = ("straight", "circle")
+SECONDS = 10.0
+
+
+def train(args) -> None:
+    """``--train``: the seven models at the CPU scale, their test losses and closed-loop figures."""
+    from jaxstyle.data import datasets, folders
+    from jaxstyle.data.locate import mocap_dir
+    from jaxstyle.mason2022 import pipeline, report
+    from jaxstyle.mason2022 import synthesis as synthesis2022
+    from jaxstyle.output import quality
+
+    t0 = time.perf_counter()
+    root = folders.style_root(args.data or mocap_dir() / "100style")
+    styles = [s for s in args.styles or folders.PAPER_BASE if s in folders.available_styles(root)]
+    if len(styles) < 1:
+        raise SystemExit(f"error: none of the styles {', '.join(args.styles or folders.PAPER_BASE)} is in {root}")
+    gaits = datasets.GAITS_100STYLE if (root / "Frame_Cuts.csv").is_file() else None
+    data = pipeline.build_data(root, styles, gaits=gaits, cache=args.out / "cache", progress=not args.no_progress)
+    lines = [f"Table 2 at CPU scale: {', '.join(data.base.styles)}, {int((data.base.split == 0).sum()):,} training "
+             f"rows; {args.hidden} hidden units, FiLM generator {args.filters} filters / {args.generator_hidden} dense "
+             f"units; {args.epochs} epochs each at Adam {args.learning_rate:g} (data ready after "
+             f"{time.perf_counter() - t0:.0f} s)", ""]
+    print(lines[0], flush=True)
+    done = pipeline.ModelRuns({}, {}, {})
+    for name in args.models:
+        config = pipeline.model_config(data.base, name, hidden=args.hidden, generator_hidden=args.generator_hidden,
+                                       filters=args.filters)
+        folder = args.out / name.replace(" ", "_")
+        model = pipeline.train_model(data, config, folder, name=name, epochs=args.epochs,
+                                     progress=not args.no_progress, learning_rate=args.learning_rate)
+        done.logs[name] = pipeline.read_log(folder)
+        done.runs[name] = pipeline.BudgetRun(model, len(done.logs[name]["epoch"]),
+                                            float(done.logs[name]["seconds"].sum()), "max epochs")
+        done.results[name] = pipeline.model_losses(model)
+        print(report.model_line(name, done), flush=True)
+    lines += report.budget_table(done.runs, done.logs)
+    lines += ["", "Test rows, dropout off: mean over styles, then per style MSE / BLL:", ""]
+    lines += report.models_table(data.base.styles, done.results) + ["", *report.ordering_lines(done.results)]
+    rows = []
+    for floor in args.phase_floors:
+        t1 = time.perf_counter()
+        mine = []
+        for name, run in done.runs.items():
+            loaded = synthesis2022.Loaded(run.model, data, args.out / name.replace(" ", "_"), run.epochs, floor)
+            mine += [{**r, "phase_floor": floor} for r in
+                     synthesis2022.measure_quality(loaded, styles, path_names=PATHS, seconds=SECONDS).rows]
+        figures = report.closed_loop_figures(mine)
+        runtime = "the paper's runtime (no phase floor)" if floor == 0 else f"local phases floored at {floor:g}"
+        lines += ["", f"Closed loop, {runtime}: {len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each at the "
+                      f"style's own speed ({time.perf_counter() - t1:.0f} s):", "",
+                  *report.closed_loop_table(figures, done.results), "", *report.closed_loop_ordering_lines(figures)]
+        rows += mine
+    lines += ["", f"whole run: {(time.perf_counter() - t0) / 60:.1f} min"]
+    print("\n".join(lines[2:]))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "table2.md").write_text("\n".join(lines) + "\n")
+    quality.write_csv(rows, args.out / "closed_loop.csv")
+    print(f"written: {args.out / 'table2.md'}, {args.out / 'closed_loop.csv'}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--calls", type=int, default=Config.calls)
     parser.add_argument("--runs", type=int, default=Config.runs)
     parser.add_argument("--no-runtime", action="store_true", help="print the parameter counts only")
+    t = parser.add_argument_group("--train: the seven models trained at the CPU scale")
+    t.add_argument("--train", action="store_true", help="train, test and drive the seven models")
+    t.add_argument("--models", type=lambda s: tuple(m.strip() for m in s.split(",") if m.strip()),
+                   default=ORDER, help="comma-separated, in training order (default: all seven)")
+    t.add_argument("--epochs", type=int, default=20, help="epochs per model")
+    t.add_argument("--hidden", type=int, default=256)
+    t.add_argument("--generator-hidden", type=int, default=512)
+    t.add_argument("--filters", type=int, default=32)
+    t.add_argument("--learning-rate", type=float, default=1e-3)
+    t.add_argument("--phase-floors", type=float, nargs="+", default=[0.0, PHASE_FLOOR])
+    t.add_argument("--data", type=Path, help="a style folder (default: $JAXSTYLE_MOCAP/100style)")
+    t.add_argument("--styles", type=lambda s: tuple(m.strip() for m in s.split(",") if m.strip()),
+                   help="comma-separated training styles (default: the paper's base styles of the sample)")
+    t.add_argument("--out", type=Path, default=Path("runs/table2"))
+    t.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
+    if args.train:
+        unknown = [m for m in args.models if m not in PAPER]
+        if unknown:
+            raise SystemExit(f"error: unknown model(s) {', '.join(unknown)}; Table 2 has {', '.join(PAPER)}")
+        return train(args)
     config = Config(calls=args.calls, runs=args.runs, runtime=not args.no_runtime)
     dev = jax.devices()[0]
     print(f"device: {dev.device_kind} ({dev.platform}), {platform.machine()} host with {os.cpu_count()} cores, "

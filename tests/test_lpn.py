@@ -413,3 +413,25 @@ def test_table2_script_prints_the_paper_counts():
     assert "| LPN FiLM | 4,935,928 | 4,935,928 | 39,214,592 | 35,668,530 | 2,048 | 2,048 |" in out
     assert "| PFNN Resad | 2,436,380 | 2,436,380 | 2,978,440 | 2,978,440 | 31,352 | 31,352 |" in out
     assert "LPN Resad S.M.N." not in out  # only the FiLM generator's count differs
+
+
+@pytest.mark.slow  # trains two tiny models and drives them: about 2 min
+def test_table2_script_trains_tests_and_drives_the_models(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from jaxstyle.data import procedural
+
+    root = procedural.write_dataset(tmp_path / "procedural", styles=["Neutral", "Crouched"], gaits=("FW",),
+                                    seconds=12, progress=False)
+    script = Path(__file__).resolve().parents[1] / "experiments" / "mason2022_table2.py"
+    out = subprocess.run([sys.executable, str(script), "--train", "--data", str(root), "--styles", "Neutral,Crouched",
+                          "--models", "PFNN One-hot,LPN FiLM", "--epochs", "1", "--hidden", "16",
+                          "--generator-hidden", "16", "--filters", "4", "--out", str(tmp_path / "t2"),
+                          "--no-progress"], capture_output=True, text=True, check=True, timeout=900).stdout
+    assert "| PFNN One-hot | 1 | max epochs |" in out and "| LPN FiLM | 1 | max epochs |" in out
+    assert out.count("| LPN FiLM | ") == 4  # the training, test and two closed-loop tables
+    assert "LPN FiLM lowest median raw skating / capture: " in out
+    assert "paper: every FiLM model below every one-hot / adapter model: " in out
+    assert (tmp_path / "t2" / "table2.md").is_file() and (tmp_path / "t2" / "closed_loop.csv").is_file()

@@ -120,3 +120,58 @@ def test_every_command_module_is_a_thin_parser_and_run():
     parser, subs = build_parser()
     assert {"demo", "data generate", "data fetch", "data prepare", "train-base", "sweep", "lpn", "synthesize",
             "render", "bench"} <= set(subs)
+
+
+def _row(model, style, path, steps, skating, contact, distance=1.0, shows=None, stalled=False, finite=True):
+    return {"model": model, "style": style, "path": path, "steps_per_s": steps, "foot_skating_m_s": skating,
+            "contact_fraction": contact, "style_distance": distance, "wrist_range_ratio": 0.5, "style_shows": shows,
+            "phases_stalled": stalled, "finite": finite}
+
+
+def test_closed_loop_figures_tell_stepping_from_gliding():
+    caps = [_row(m, s, "capture", 2.0, 0.1, 0.6) for m in ("LPN FiLM", "PFNN One-hot") for s in ("Drunk", "Angry")]
+    rows = caps + [
+        _row("LPN FiLM", "Drunk", "straight", 2.2, 0.2, 0.7, 0.3, shows=True),     # steps, 2x skating
+        _row("LPN FiLM", "Angry", "straight", 0.2, 0.9, 0.99, 2.0, shows=False, stalled=True),  # glides
+        _row("LPN FiLM", "Angry", "circle", np.nan, np.nan, np.nan, finite=False),  # diverged: left out
+        _row("PFNN One-hot", "Drunk", "straight", 1.4, 0.4, 0.8, 0.5, shows=True),  # 0.7x: not within 25%
+        _row("PFNN One-hot", "Angry", "straight", 2.4, 0.5, 0.96, 0.7, shows=True)]  # 1.2x, feet down 96%
+    f = report.closed_loop_figures(rows)
+    lpn, pfnn = f["LPN FiLM"], f["PFNN One-hot"]
+    assert (lpn["rows"], lpn["diverged"], lpn["stepping"], lpn["gliding"], lpn["stalled"]) == (3, 1, 1, 1, 1)
+    assert (pfnn["rows"], pfnn["stepping"], pfnn["gliding"], pfnn["stalled"]) == (2, 1, 1, 0)
+    np.testing.assert_allclose([lpn["steps_ratio"], lpn["skating_ratio"], lpn["style_distance"]],
+                               [np.median([1.1, 0.1]), np.median([2.0, 9.0]), np.median([0.3, 2.0])])
+    np.testing.assert_allclose([pfnn["steps_ratio"], pfnn["skating_ratio"]], [np.median([0.7, 1.2]), 4.5])
+    assert (lpn["shows"], lpn["styled"], pfnn["shows"], pfnn["styled"]) == (1, 2, 2, 2)
+    table = report.closed_loop_table(f, {"LPN FiLM": {"mse": np.array([0.1]), "bll": np.array([0.01])}})
+    assert table[2].startswith("| LPN FiLM | 0.1100 | 1 / 2 | 0.60 | 1 / 2 | 1 / 2 | 5.5 | 1.15 | 1 / 2 | 0.50 |"
+                               " 1 / 3 |")
+    assert table[3].startswith("| PFNN One-hot | - | 1 / 2 |")
+    lines = report.closed_loop_ordering_lines(f)
+    assert lines[0] == "LPN FiLM most rows stepping within 25% of the capture: holds (LPN FiLM 1)"  # a tie holds
+    assert lines[1] == ("LPN FiLM lowest median raw skating / capture: does not hold (LPN FiLM 5.50, best PFNN One-hot "
+                        "4.50)")
+    assert lines[2] == "LPN FiLM lowest median style distance: does not hold (LPN FiLM 1.15, best PFNN One-hot 0.60)"
+    assert lines[3].startswith("every FiLM model's median style distance below every one-hot / adapter model's: "
+                               "does not hold (worst FiLM LPN FiLM 1.15")
+    assert report.closed_loop_ordering_lines({"LPN FiLM": lpn}) == []  # nothing to compare with
+
+
+@pytest.mark.slow  # 2 tiny models, about 40 s
+def test_train_models_trains_each_in_its_share_and_resumes(tiny, tmp_path):
+    import time
+
+    root, cache = tiny
+    data = pipeline.build_data(root, ("Neutral",), cache=cache)
+    seen = []
+    names = ("LPN One-hot", "LPN FiLM")
+    kw = dict(hidden=8, generator_hidden=16, filters=4, max_epochs=2, progress=False)
+    done = pipeline.train_models(data, names, tmp_path, time.perf_counter(), jobs_after=1, **kw,
+                                 after_each=lambda name, d: seen.append((name, tuple(d.runs))))
+    assert seen == [("LPN One-hot", ("LPN One-hot",)), ("LPN FiLM", names)]  # a partial report after each
+    assert [(r.epochs, r.stopped) for r in done.runs.values()] == [(1, "budget"), (1, "budget")]  # no time: 1 epoch
+    assert all(np.isfinite(done.results[n]["mse"]).all() and len(done.logs[n]["epoch"]) == 1 for n in names)
+    assert report.model_line("LPN FiLM", done).startswith("LPN FiLM: 1 epochs (budget) in ")
+    again = pipeline.train_models(data, names, tmp_path, time.perf_counter() + 1e6, **kw)
+    assert [(r.epochs, r.stopped) for r in again.runs.values()] == [(2, "max epochs"), (2, "max epochs")]

@@ -9,7 +9,7 @@ folder in the 100STYLE layout (:mod:`jaxstyle.data.folders`):
 2. train: :func:`model_config` sizes any of Table 2's seven models for the data and
    :func:`train_model` trains it into a folder (or resumes, or reloads it); :func:`train_for`
    trains within a wall-clock :class:`Budget` (whole epochs, early stop once validation has
-   flattened); :func:`model_losses`;
+   flattened), :func:`train_models` several models within one budget; :func:`model_losses`;
 3. new styles: :mod:`jaxstyle.mason2022.finetune` (the FiLM generator fine-tuned for every (new
    style, dropout rate) pair in one compiled program, validated, checked closed-loop, a rate
    chosen by the 2018 sweep's rule, the user's own clips as new styles);
@@ -228,3 +228,43 @@ def steps_per_epoch(data: train_lpn.StyleData, batch_size: int = 32) -> int:
     from jaxstyle.data.batching import balanced_batches
 
     return len(balanced_batches(data.train_rows, batch_size, seed=0))
+
+
+class ModelRuns(NamedTuple):
+    """What :func:`train_models` did: per model name its :class:`BudgetRun` (``runs``), its
+    training log (``logs``, :func:`read_log`) and its test losses (``results``,
+    :func:`model_losses`)."""
+
+    runs: dict[str, BudgetRun]
+    logs: dict[str, dict[str, np.ndarray]]
+    results: dict[str, dict[str, np.ndarray]]
+
+
+def train_models(data: LPNData, names: Sequence[str], out: str | os.PathLike, deadline: float, *,
+                 jobs_after: int = 0, max_epochs: int = 90, hidden: int = 512, generator_hidden: int = 2048,
+                 filters: int = 256, train_config: dict | None = None, progress: bool = True,
+                 after_each=None) -> ModelRuns:
+    """Train several of Table 2's models (``names``, in order) into ``out/<name>`` within one
+    wall-clock budget ending at ``deadline`` (``time.perf_counter()`` seconds), and test each.
+
+    The rule: as each model starts, the time left is split evenly over the models left and
+    ``jobs_after`` later jobs (e.g. a fine-tuning sweep), so a model that stops early hands its
+    unused time to the jobs after it; each model trains by :func:`train_for` (whole epochs, at most
+    ``max_epochs``, early stop once validation has flattened). Sizes: :func:`model_config`;
+    ``train_config``: further :class:`jaxstyle.mason2022.train.LPNTrainConfig` fields (e.g. a
+    ``learning_rate``). ``after_each(name, model_runs)`` is called after each model (a partial
+    report). A second call with a later deadline resumes every folder."""
+    out = Path(out)
+    runs, logs, results = {}, {}, {}
+    jobs = len(names) + jobs_after
+    for i, name in enumerate(names):
+        share = max(0.0, (deadline - time.perf_counter()) / (jobs - i))
+        config = model_config(data.base, name, hidden=hidden, generator_hidden=generator_hidden, filters=filters)
+        folder = out / name.replace(" ", "_")
+        runs[name] = train_for(data, config, folder, Budget(share, max_epochs=max_epochs), name=name,
+                               progress=progress, train_config=train_config)
+        logs[name] = read_log(folder)
+        results[name] = model_losses(runs[name].model)
+        if after_each is not None:
+            after_each(name, ModelRuns(runs, logs, results))
+    return ModelRuns(runs, logs, results)

@@ -14,7 +14,7 @@ from typing import Sequence
 import numpy as np
 
 from jaxstyle.mason2022.finetune import FinetuneResult
-from jaxstyle.mason2022.pipeline import BudgetRun, Model
+from jaxstyle.mason2022.pipeline import BudgetRun, Model, ModelRuns
 from jaxstyle.nn import film_generator as film
 from jaxstyle.output import viz
 
@@ -32,6 +32,14 @@ def budget_table(runs: dict[str, BudgetRun], logs: dict[str, dict[str, np.ndarra
                      f"{log['val_mse'][-1]:.4f} | {np.nanmin(log['val_mse']):.4f} | "
                      f"{log['val_mse'][common - 1]:.4f} |")
     return lines
+
+
+def model_line(name: str, done: ModelRuns) -> str:
+    """One line on a model just trained by :func:`jaxstyle.mason2022.pipeline.train_models`: its
+    epochs, why it stopped, its minutes, its last validation MSE and its test MSE."""
+    run, log = done.runs[name], done.logs[name]
+    return (f"{name}: {run.epochs} epochs ({run.stopped}) in {run.seconds / 60:.1f} min; validation MSE "
+            f"{log['val_mse'][-1]:.4f}; test MSE {np.mean(done.results[name]['mse']):.4f}")
 
 
 def ordering_lines(results: dict[str, dict[str, np.ndarray]]) -> list[str]:
@@ -54,6 +62,85 @@ def ordering_lines(results: dict[str, dict[str, np.ndarray]]) -> list[str]:
         holds = total["PFNN Resad"] < total["LPN Resad"]
         lines.append(f"paper: PFNN Resad below LPN Resad: {'holds' if holds else 'does not hold'} "
                      f"({total['PFNN Resad']:.4f} vs {total['LPN Resad']:.4f})")
+    return lines
+
+
+def closed_loop_figures(rows: list[dict]) -> dict[str, dict]:
+    """Per model (the ``model`` of rows of :func:`jaxstyle.output.quality.run`, its capture rows
+    included) the closed-loop figures that tell stepping from gliding: ``rows`` driven,
+    ``diverged`` (a non-finite rollout), ``stalled`` (local phases stalled,
+    :func:`jaxstyle.output.quality.phase_figures`), ``stepping`` (steps per second of the locked
+    skeleton within 25% of its capture's), ``gliding`` (feet on the floor over 95% of frames where
+    its capture's are not), the medians over rows of ``steps_ratio`` and ``skating_ratio`` (raw foot
+    skating of the network's joints over its capture's), ``style_distance`` (m), ``wrist_range_ratio``,
+    and ``shows`` / ``styled`` (rows whose style shows, of the rows of a style other than Neutral)."""
+    captures = {(r["model"], r["style"]): r for r in rows if r["path"] == "capture"}
+    out = {}
+    for model in dict.fromkeys(r["model"] for r in rows):
+        mine = [(r, captures[(model, r["style"])]) for r in rows if r["model"] == model and r["path"] != "capture"]
+        finite = [(r, c) for r, c in mine if r.get("finite", True)]
+        steps = np.array([r["steps_per_s"] / c["steps_per_s"] for r, c in finite])
+        styled = [r for r, _ in finite if r.get("style_shows") is not None]
+        out[model] = {
+            "rows": len(mine), "diverged": len(mine) - len(finite),
+            "stalled": sum(bool(r.get("phases_stalled")) for r, _ in finite),
+            "stepping": int(np.sum(np.abs(steps - 1.0) <= 0.25)),
+            "gliding": sum(r["contact_fraction"] > 0.95 >= c["contact_fraction"] for r, c in finite),
+            "steps_ratio": float(np.median(steps)) if len(steps) else np.nan,
+            "skating_ratio": float(np.median([r["foot_skating_m_s"] / c["foot_skating_m_s"] for r, c in finite]))
+            if finite else np.nan,
+            "style_distance": float(np.nanmedian([r["style_distance"] for r, _ in finite])) if finite else np.nan,
+            "wrist_range_ratio": float(np.nanmedian([r["wrist_range_ratio"] for r, _ in finite])) if finite
+            else np.nan,
+            "shows": sum(bool(r["style_shows"]) for r in styled), "styled": len(styled)}
+    return out
+
+
+def closed_loop_table(figures: dict[str, dict], results: dict[str, dict[str, np.ndarray]] | None = None) -> list[str]:
+    """Markdown lines of :func:`closed_loop_figures`, one row per model, with its test MSE + BLL
+    from ``results`` (:func:`jaxstyle.mason2022.pipeline.model_losses` per model) where given."""
+    lines = ["| model | test MSE + BLL | rows stepping within 25% | median steps/s / capture | rows gliding | "
+             "rows stalled | median raw skating / capture | median style distance m | styles shown | "
+             "median wrist range / capture | diverged |", "|---|" + "---|" * 10]
+    for name, f in figures.items():
+        loss = (f"{np.mean(results[name]['mse']) + np.mean(results[name]['bll']):.4f}"
+                if results and name in results else "-")
+        n = f["rows"] - f["diverged"]
+        lines.append(f"| {name} | {loss} | {f['stepping']} / {n} | {f['steps_ratio']:.2f} | {f['gliding']} / {n} | "
+                     f"{f['stalled']} / {n} | {f['skating_ratio']:.1f} | {f['style_distance']:.2f} | "
+                     f"{f['shows']} / {f['styled']} | {f['wrist_range_ratio']:.2f} | {f['diverged']} / {f['rows']} |")
+    return lines
+
+
+def closed_loop_ordering_lines(figures: dict[str, dict], best: str = "LPN FiLM") -> list[str]:
+    """Lines: whether ``best`` (the paper's model) is at least as good as every other model of
+    ``figures`` (:func:`closed_loop_figures`) in the closed loop: the most rows stepping within 25%
+    of their captures, the lowest median raw skating ratio, the lowest median style distance; and
+    whether every FiLM model's median style distance is below every one-hot / adapter model's (the
+    paper's section 5.1 finds FiLM models the better stylists by eye; it gives no closed-loop
+    figures)."""
+    if best not in figures or len(figures) < 2:
+        return []
+    lines = []
+    for key, label, sign in (("stepping", "most rows stepping within 25% of the capture", -1),
+                             ("skating_ratio", "lowest median raw skating / capture", 1),
+                             ("style_distance", "lowest median style distance", 1)):
+        value = {n: sign * f[key] for n, f in figures.items() if np.isfinite(f[key])}
+        if best not in value:
+            continue
+        top = min(value, key=value.get)
+        holds = value[best] <= value[top]
+        shown = {n: f"{sign * v:.0f}" if key == "stepping" else f"{sign * v:.2f}" for n, v in value.items()}
+        lines.append(f"{best} {label}: {'holds' if holds else 'does not hold'} ({best} {shown[best]}"
+                     + ("" if holds else f", best {top} {shown[top]}") + ")")
+    film_models = {n: f["style_distance"] for n, f in figures.items() if "FiLM" in n}
+    other = {n: f["style_distance"] for n, f in figures.items() if "FiLM" not in n}
+    if film_models and other:
+        worst, top = max(film_models, key=film_models.get), min(other, key=other.get)
+        holds = film_models[worst] < other[top]
+        lines.append(f"every FiLM model's median style distance below every one-hot / adapter model's: "
+                     f"{'holds' if holds else 'does not hold'} (worst FiLM {worst} {film_models[worst]:.2f}, "
+                     f"best other {top} {other[top]:.2f})")
     return lines
 
 
