@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from jaxstyle.control import lpn_controller
+from jaxstyle.data.datasets import consecutive_rows
 from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
@@ -23,6 +24,9 @@ def test_next_rows_and_rollout_starts_match_a_loop():
     for i in range(len(clip)):
         want = [j for j in range(len(clip)) if clip[j] == clip[i] and frame[j] == frame[i] + 1]
         assert nxt[i] == (want[0] if want else -1)
+    a, b = consecutive_rows(clip, frame)
+    pairs = sorted(zip(a.tolist(), b.tolist(), strict=True))
+    assert pairs == [(i, int(nxt[i])) for i in range(len(clip)) if nxt[i] >= 0]
     rows = np.flatnonzero(~((clip == 2) & (frame == 13)))  # a hole in clip 2
     for steps in (0, 1, 3):
         got = train_lpn.rollout_starts(rows, nxt, steps)

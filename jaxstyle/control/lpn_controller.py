@@ -67,7 +67,7 @@ from flax import struct
 
 from jaxstyle.control import loop
 from jaxstyle.control.loop import f32, initial_ground, normaliser_arrays, rotate_xz, trajectory_input
-from jaxstyle.data.datasets import style_rows
+from jaxstyle.data.datasets import consecutive_rows, style_rows
 from jaxstyle.data.lpn_features import NUM_PHASE_FEATURES, LPNLayout, decode_lpn, end_effector_columns
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
@@ -185,13 +185,11 @@ def capture_phase_rate(dataset, name: str) -> float:
     (:func:`local_phase_advance` between each row and the next frame of its clip): the rate a
     character of that style's capture steps at. 0 for a style without consecutive rows."""
     rows = style_rows(dataset, name)
-    rows = rows[np.lexsort((dataset.frame[rows], dataset.clip[rows]))]
-    clip, frame = dataset.clip[rows], dataset.frame[rows]
-    pair = (clip[1:] == clip[:-1]) & (frame[1:] == frame[:-1] + 1)
-    if not pair.any():
+    a, b = consecutive_rows(dataset.clip[rows], dataset.frame[rows])
+    if not len(a):
         return 0.0
     p = np.asarray(dataset.phases[rows], np.float64)
-    return float(np.median(local_phase_advance(p[:-1], p[1:])[pair]))
+    return float(np.median(local_phase_advance(p[a], p[b])))
 
 
 def global_phase_ratio(global_phase_N: np.ndarray, omega_N: np.ndarray, clip_N: np.ndarray,
@@ -208,12 +206,10 @@ def global_phase_ratio(global_phase_N: np.ndarray, omega_N: np.ndarray, clip_N: 
     if not (g.shape == w.shape == clip.shape == frame.shape) or g.ndim != 1:
         raise ValueError(f"need (N,) global phases, advances, clips and frames; got {g.shape}, {w.shape}, "
                          f"{clip.shape}, {frame.shape}")
-    order = np.lexsort((frame, clip))
-    g, w, clip, frame = g[order], w[order], clip[order], frame[order]
-    pair = (clip[1:] == clip[:-1]) & (frame[1:] == frame[:-1] + 1)
-    dg = np.mod(g[1:] - g[:-1], 1.0)[pair]
-    dl = np.maximum(w[:-1], 0.0)[pair]
-    if not pair.any() or not dl.sum() > 0 or not np.isfinite(dg.sum() / dl.sum()):
+    a, b = consecutive_rows(clip, frame)
+    dg = np.mod(g[b] - g[a], 1.0)
+    dl = np.maximum(w[a], 0.0)
+    if not len(a) or not dl.sum() > 0 or not np.isfinite(dg.sum() / dl.sum()):
         return 1.0
     return float(dg.sum() / dl.sum())
 

@@ -291,6 +291,15 @@ FORWARD_GAITS = ("FW", "FR")
 forward walk, else a forward run (the paths move forward)."""
 
 
+def consecutive_rows(clip_N: np.ndarray, frame_N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(a, b)``: the indices of every pair of rows where row ``b[k]`` is the frame after row
+    ``a[k]`` in the same clip (rows in any order; each frame of a clip once)."""
+    clip, frame = np.asarray(clip_N), np.asarray(frame_N)
+    order = np.lexsort((frame, clip))
+    follows = (clip[order][1:] == clip[order][:-1]) & (frame[order][1:] == frame[order][:-1] + 1)
+    return order[:-1][follows], order[1:][follows]
+
+
 def style_rows(dataset: Dataset, style: str, gaits: Sequence[str] = FORWARD_GAITS) -> np.ndarray:
     """Training rows of ``style``, only those of its clips of the first of ``gaits`` it has (all its
     rows when it has none of them): where a driven character of the style starts, and what its own

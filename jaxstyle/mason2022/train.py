@@ -35,6 +35,7 @@ import numpy as np
 import optax
 
 from jaxstyle.data.batching import balanced_batches
+from jaxstyle.data.datasets import consecutive_rows
 from jaxstyle.data.lpn_features import LPNLayout, bone_parents, end_effector_columns
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
@@ -113,11 +114,9 @@ class StyleData(NamedTuple):
 
 def next_rows(clip_N: np.ndarray, frame_N: np.ndarray) -> np.ndarray:
     """``(N,)``: for each row the row of the next frame of the same clip, -1 where there is none."""
-    clip, frame = np.asarray(clip_N), np.asarray(frame_N)
-    order = np.lexsort((frame, clip))
-    out = np.full(len(clip), -1, np.int64)
-    follows = (clip[order][1:] == clip[order][:-1]) & (frame[order][1:] == frame[order][:-1] + 1)
-    out[order[:-1][follows]] = order[1:][follows]
+    out = np.full(len(clip_N), -1, np.int64)
+    a, b = consecutive_rows(clip_N, frame_N)
+    out[a] = b
     return out
 
 
