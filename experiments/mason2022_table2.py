@@ -17,8 +17,8 @@ as in the paper (which timed its own C# runtime on its own CPU). No motion captu
 
 1. Data: the paper's base styles of the shared 100STYLE sample
    (:data:`jaxstyle.data.folders.PAPER_BASE`: Angry, Chicken, Drunk, InTheDark, Neutral; every
-   locomotion gait, mirrored; :func:`jaxstyle.mason2022.pipeline.build_data`), or ``--styles``
-   of ``--data``.
+   gait, idling and transitions included as in ``experiments/mason2022_styles.py``, mirrored;
+   :func:`jaxstyle.mason2022.pipeline.build_data`), or ``--styles`` of ``--data``.
 2. Models: all seven at the demo's size (``--hidden`` 256 units, a FiLM generator of ``--filters``
    32 filters and ``--generator-hidden`` 512 dense units), Adam at ``--learning-rate`` 1e-3 (the
    demo's: at 1e-4 a few epochs leave every model standing still), ``--epochs`` epochs each, as the

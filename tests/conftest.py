@@ -25,6 +25,14 @@ if os.environ.get("JAXSTYLE_TEST_XLA_DEFAULT") != "1" and "xla_backend_optimizat
         "XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FAST_COMPILE).strip()
 
+# Under pytest-xdist every worker is one of -n processes sharing the machine's cores: each runs
+# XLA's CPU kernels and numpy on one thread, so the workers (and the commands they start, which
+# inherit this environment) do not oversubscribe the cores.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
+    for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")
+
 # The command line's persistent compilation cache (jaxstyle.cli.common.use_xla_cache) stays off in
 # the tests, so every test compiles what it runs; tests of the cache set the variable themselves.
 os.environ.setdefault("JAXSTYLE_XLA_CACHE", "off")

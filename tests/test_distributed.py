@@ -88,6 +88,7 @@ def base_run(tmp_path_factory) -> tuple[Path, Path]:
     return data, run
 
 
+@pytest.mark.slow  # 32 s, and under the default run's two busy workers its coordinator can time out
 def test_two_process_sweep_equals_the_one_process_sweep(base_run, tmp_path):
     _, run = base_run
     one, zero, other = (tmp_path / n for n in ("one", "zero", "other"))
@@ -110,8 +111,8 @@ def test_two_process_sweep_equals_the_one_process_sweep(base_run, tmp_path):
     assert snapshot(other) == before  # process 1 read its base and wrote nothing
 
 
-@pytest.mark.slow  # python -m pytest -m slow: the default run checks two processes on the sweep (above) and the
-# LPN's sharded step in one process (test_lpn_sharded.py); this one adds two more JAX processes on 2 cores
+@pytest.mark.slow  # python -m pytest -m slow: the default run checks the LPN's sharded step in one process
+# (test_lpn_sharded.py); this one adds two more JAX processes on 2 cores
 def test_two_process_lpn_training_equals_the_one_process_run(base_run, tmp_path):
     data, _ = base_run
     port = free_port()
@@ -128,6 +129,7 @@ def test_two_process_lpn_training_equals_the_one_process_run(base_run, tmp_path)
     assert not (tmp_path / "other").exists()  # process 1 wrote nothing
 
 
+@pytest.mark.slow  # 13 s
 def test_a_dead_process_stops_the_other_with_one_line(base_run, tmp_path):
     _, run = base_run
     shutil.copytree(run, tmp_path / "zero")

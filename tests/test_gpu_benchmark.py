@@ -8,9 +8,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow  # about 35 s on 2 CPU cores: python -m pytest -m slow
 def test_gpu_benchmark_small_runs_on_cpu(tmp_path):
     proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "gpu.py"), "--small", "--out", str(tmp_path)],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)

@@ -285,7 +285,7 @@ def test_pfnn_table_rollout_matches_the_continuous_phase(mocap):
 
 @pytest.fixture(scope="module")
 def trained_pfnn(mocap):
-    """A small PFNN (hidden 128, CP rank 8) trained for 20 epochs on the shared Neutral clips
+    """A small PFNN (hidden 128, CP rank 8) trained for 10 epochs on the shared Neutral clips
     (walk, run, turns, idle, mirrored): about 4,300 rows, under a minute on 2 CPU cores."""
     import warnings
 
@@ -298,7 +298,7 @@ def trained_pfnn(mocap):
         dataset = datasets.build_pfnn_dataset(specs, skip_short=True)
     layout = js.PFNNLayout((dataset.inputs.shape[1] - 48) // 6)
     model = pfnn.PFNNConfig(input_size=layout.input_size, hidden_size=128, output_size=layout.output_size, rank=8)
-    state = train(data_from_dataset(dataset), TrainConfig(model=model, epochs=20, half_mirrored=True,
+    state = train(data_from_dataset(dataset), TrainConfig(model=model, epochs=10, half_mirrored=True,
                                                           dropout_rate=0.1), None, progress=False)
     skeleton = datasets.load_clip(specs[0], fps=60.0)
     return state["params"], dataset, skeleton

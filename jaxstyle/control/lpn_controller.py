@@ -228,12 +228,8 @@ def phase_ratio(params: dict, config: StyleModelConfig, style, x_norm: Normalise
     xm, xs = normaliser_arrays(x_norm)
     ym, ys = normaliser_arrays(y_norm)
     x_n = (jnp.asarray(dataset.inputs[rows], jnp.float32) - xm) / xs
-    if config.backbone == "pfnn":
-        gate = jnp.asarray(dataset.global_phase[rows], jnp.float32)[:, None]
-    elif config.backbone == "lpn":
-        gate = jnp.asarray(dataset.phases[rows], jnp.float32)
-    else:
-        gate = x_n[:, jnp.asarray(_check(config, gate_columns))]
+    gate = _gate(config, jnp.asarray(dataset.phases[rows], jnp.float32),
+                 jnp.asarray(dataset.global_phase[rows], jnp.float32), x_n, _check(config, gate_columns))
     y = style_models.model_apply(params, config, x_n, gate, style) * ys + ym
     omega = np.asarray(predicted_advance(y, LPNLayout.of_inputs(x_n.shape[1]).num_bones))
     return global_phase_ratio(dataset.global_phase[rows], omega, dataset.clip[rows], dataset.frame[rows])
@@ -358,14 +354,16 @@ def advance(state: LPNState, y: jax.Array, num_bones: int, stand=0.0, joint_smoo
     return new_state, LPNRollout(positions, new_origin, new_yaw, phases, contacts, y, global_phase)
 
 
-def _gate(config: StyleModelConfig, state: LPNState, x_n: jax.Array, gate_columns):
-    """The expert blend's input: the local phases (LPN), the global phase (PFNN, ``(1, 1)`` in
-    cycles) or the end effectors' normalised velocities (MANN)."""
+def _gate(config: StyleModelConfig, phases_Nx8: jax.Array, global_phase_N: jax.Array, x_n_NxD: jax.Array,
+          gate_columns) -> jax.Array:
+    """The expert blend's input for ``N`` rows: the local phases (LPN), the global phase (PFNN,
+    ``(N, 1)`` in cycles) or the end effectors' normalised velocities (MANN, the ``gate_columns``
+    of the normalised input)."""
     if config.backbone == "lpn":
-        return state.phases[None]
+        return phases_Nx8
     if config.backbone == "pfnn":
-        return jnp.reshape(state.global_phase, (1, 1))
-    return x_n[:, jnp.asarray(gate_columns)]
+        return jnp.reshape(global_phase_N, (-1, 1))
+    return x_n_NxD[:, jnp.asarray(gate_columns)]
 
 
 def _check(config: StyleModelConfig, gate_columns):
@@ -418,7 +416,7 @@ class StyleNetModel:
         x = jnp.concatenate([trajectory_input(state.hist_xz, state.hist_yaw, state.future, control, self.blend_bias),
                              state.joints])
         x_n = ((x - self.x_norm[0]) / self.x_norm[1])[None]
-        gate = _gate(self.config, state, x_n, self.gate_columns)
+        gate = _gate(self.config, state.phases[None], state.global_phase[None], x_n, self.gate_columns)
         y_n = style_models.model_apply(self.params, self.config, x_n, gate, style)[0]
         stand = control[2] if len(control) > 2 else 0.0
         return advance(state, y_n * self.y_norm[1] + self.y_norm[0], self.num_bones, stand)

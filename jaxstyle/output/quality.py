@@ -19,7 +19,7 @@ the 2018 PFNN with style adapters, the 2022 style models; measured by the one fu
   after each stop command (:func:`jaxstyle.output.metrics.stop_times`), jitter and ankle jerk.
 
 :func:`capture_row` gives the same figures for a forward clip of the style's capture
-(:func:`capture_clip`; no path: those are blank). Every row names its ``model``
+(:func:`capture_spec`, loaded once by :class:`CaptureStyle`; no path: those are blank). Every row names its ``model``
 (:data:`MODEL_2018` or the 2022 model's Table 2 name).
 :func:`targets` checks the targets, :func:`table` and :func:`write_csv` report,
 :func:`target_marks` lists chosen targets with pass/fail marks (``jaxstyle demo``), :func:`plot`
@@ -198,15 +198,10 @@ def run(model: CharacterModel, subjects: Sequence[Subject], skeleton: Motion, *,
     return measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton, driven.speeds)
 
 
-def capture_clip(subject: Subject, fps: float = 60.0) -> Motion:
-    """The style's capture: the first clip of its start rows
+def capture_spec(dataset: datasets.Dataset, name: str):
+    """The clip spec of a style's capture: the first clip of its start rows
     (:func:`jaxstyle.data.datasets.style_rows`: a forward walk, else a forward run, of the style;
     never a backward or sideways take while it has a forward one), as the paths move forward."""
-    return datasets.load_clip(capture_spec(subject.dataset, subject.style), fps=fps)
-
-
-def capture_spec(dataset: datasets.Dataset, name: str):
-    """The clip spec of a style's capture row (:func:`capture_clip`)."""
     return dataset.specs[int(dataset.clip[style_rows(dataset, name)[0]])]
 
 
