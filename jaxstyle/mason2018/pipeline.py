@@ -68,7 +68,7 @@ from jaxstyle.motion.bvh import frame_rate, read_joint_names
 from jaxstyle.motion.skeleton import JointMap
 from jaxstyle.nn import pfnn
 from jaxstyle.output import drive
-from jaxstyle.output.check import FAILED_MARK, failed_check
+from jaxstyle.output.check import FAILED_MARK, failed_check, refusal
 from jaxstyle.output.drive import Character
 from jaxstyle.train.checkpoint import json_text, read_json
 from jaxstyle.train.scan import DEFAULT_RATES
@@ -457,8 +457,7 @@ def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
             raise PipelineError(f"unknown few-shot set {name!r}; the sweep has {', '.join(chosen or {}) or 'none'}")
         failed = failed_check(chosen[name], name)
         if failed and not allow_failed:
-            raise PipelineError(f"few-shot set {failed}; it is not used (--allow-failed uses it anyway, marked in "
-                                "the tables)")
+            raise PipelineError(refusal("few-shot set", failed))
         adapter = selection.load_adapter(Path(sweep_dir) / "adapters" / name, base.model)
         mark = FAILED_MARK if failed else ""
         out.append(Character(f"{name} (few-shot, rate {chosen[name]['rate']:g}){mark}", name, adapter, shots, name))

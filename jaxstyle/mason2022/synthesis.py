@@ -44,7 +44,7 @@ from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import drive
-from jaxstyle.output.check import FAILED_MARK, failed_check
+from jaxstyle.output.check import FAILED_MARK, failed_check, refusal
 from jaxstyle.output.drive import Character
 from jaxstyle.train.defaults import PHASE_FLOOR
 
@@ -177,8 +177,7 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
                 raise PipelineError(f"unknown new style {name!r}; {folder} has {', '.join(chosen) or 'none'}")
             failed = failed_check(chosen[name], name)
             if failed and not allow_failed:
-                raise PipelineError(f"new style {failed}; it is not used (--allow-failed uses it anyway, marked in "
-                                    "the tables)")
+                raise PipelineError(refusal("new style", failed))
             s = new.styles.index(name)
             gen = jax.tree.map(lambda v, s=s, r=int(chosen[name]["rate_index"]): v[s, r], gens)
             runtime = film.clip_films(gen, new.clips[new.train_clips[s]]).mean(axis=0)

@@ -93,6 +93,12 @@ def failed_check(info: dict, name: str) -> str | None:
     return f"{name} failed the closed-loop check at every rate (at its chosen rate {info['rate']:g}: {what})"
 
 
+def refusal(kind: str, failed: str) -> str:
+    """The one line that refuses a style whose check failed (``failed``: :func:`failed_check`'s
+    line; ``kind``: "few-shot set", "new style") in ``synthesize`` and ``demo``."""
+    return f"{kind} {failed}; it is not used (--allow-failed uses it anyway, marked in the tables)"
+
+
 def choose_rates(validation_loss_SxR: np.ndarray, passed_SxR: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Per style the index of the chosen rate and whether it passed the closed-loop check: the
