@@ -89,6 +89,11 @@ PATHS = ("straight", "circle")
 SECONDS = 10.0
 
 
+def names(text: str) -> tuple[str, ...]:
+    """A comma-separated list of names (argparse ``type``)."""
+    return tuple(s.strip() for s in text.split(",") if s.strip())
+
+
 def train(args) -> None:
     """``--train``: the seven models at the CPU scale, their test losses and closed-loop figures."""
     from jaxstyle.data import datasets, folders
@@ -113,7 +118,7 @@ def train(args) -> None:
     for name in args.models:
         config = pipeline.model_config(data.base, name, hidden=args.hidden, generator_hidden=args.generator_hidden,
                                        filters=args.filters)
-        folder = args.out / name.replace(" ", "_")
+        folder = pipeline.model_folder(args.out, name)
         model = pipeline.train_model(data, config, folder, name=name, epochs=args.epochs,
                                      progress=not args.no_progress, learning_rate=args.learning_rate)
         done.logs[name] = pipeline.read_log(folder)
@@ -129,7 +134,8 @@ def train(args) -> None:
         t1 = time.perf_counter()
         mine = []
         for name, run in done.runs.items():
-            loaded = synthesis2022.Loaded(run.model, data, args.out / name.replace(" ", "_"), run.epochs, floor)
+            loaded = synthesis2022.Loaded(run.model, data, pipeline.model_folder(args.out, name), run.epochs,
+                                          floor)
             mine += [{**r, "phase_floor": floor} for r in
                      synthesis2022.measure_quality(loaded, styles, path_names=PATHS, seconds=SECONDS).rows]
         figures = report.closed_loop_figures(mine)
@@ -153,8 +159,8 @@ def main() -> None:
     parser.add_argument("--no-runtime", action="store_true", help="print the parameter counts only")
     t = parser.add_argument_group("--train: the seven models trained at the CPU scale")
     t.add_argument("--train", action="store_true", help="train, test and drive the seven models")
-    t.add_argument("--models", type=lambda s: tuple(m.strip() for m in s.split(",") if m.strip()),
-                   default=ORDER, help="comma-separated, in training order (default: all seven)")
+    t.add_argument("--models", type=names, default=ORDER,
+                   help="comma-separated, in training order (default: all seven)")
     t.add_argument("--epochs", type=int, default=20, help="epochs per model")
     t.add_argument("--hidden", type=int, default=256)
     t.add_argument("--generator-hidden", type=int, default=512)
@@ -162,7 +168,7 @@ def main() -> None:
     t.add_argument("--learning-rate", type=float, default=1e-3)
     t.add_argument("--phase-floors", type=float, nargs="+", default=[0.0, PHASE_FLOOR])
     t.add_argument("--data", type=Path, help="a style folder (default: $JAXSTYLE_MOCAP/100style)")
-    t.add_argument("--styles", type=lambda s: tuple(m.strip() for m in s.split(",") if m.strip()),
+    t.add_argument("--styles", type=names,
                    help="comma-separated training styles (default: the paper's base styles of the sample)")
     t.add_argument("--out", type=Path, default=Path("runs/table2"))
     t.add_argument("--no-progress", action="store_true")

@@ -73,7 +73,7 @@ def add_arguments(p) -> None:
                    help="std of Gaussian noise on the normalised inputs in training (not in the paper; 0: none)")
     p.add_argument("--rollout-steps", type=int, default=0,
                    help="rollout training: each row starts a window of 1 + N frames fed the network's own outputs "
-                        "(not in the paper; 0: none; docs/mason2022.md, 'Why the closed loop freezes')")
+                        "(not in the paper; 0: none; docs/mason2022.md, 'The closed loop: why it froze')")
     add_joint_map_arg(p)
     add_distributed_args(p)
     add_common(p)

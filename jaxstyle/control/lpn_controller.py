@@ -166,7 +166,7 @@ def floored_phases(p0_8: jax.Array, p1_8: jax.Array, floor) -> jax.Array:
     Why: the runtime blend of Starke et al. 2020, ``(P~_{t+1} + P_t + dP) / 2``, has a fixed point
     wherever the network's predicted phase stops turning with a still pose, and an under-trained
     network's closed loop settles there (the phases stall, the gating stops cycling the experts,
-    the character freezes and glides; docs/mason2022.md, "Why the closed loop freezes"). With a
+    the character freezes and glides; docs/mason2022.md, "The closed loop: why it froze"). With a
     floor from the style's capture (:func:`capture_phase_rate`) the phases keep turning, so the
     experts keep cycling; the network still sets each limb's amplitude and any faster advance."""
     a = p0_8.reshape(NUM_PHASE_FEATURES // 2, 2)
@@ -439,8 +439,14 @@ class StyleNetModel:
         name = dataset.styles[int(dataset.style[row])]
         ratio = 1.0 if style is None else self.phase_ratio(style, dataset, name)
         phase = float(dataset.global_phase[row]) if len(dataset.global_phase) == len(dataset.inputs) else 0.0
-        floor = self.phase_floor * capture_phase_rate(dataset, name) if self.phase_floor > 0 else 0.0
-        return initial_state(dataset.inputs[row], dataset.phases[row], self.num_bones, phase, ratio, floor)
+        return initial_state(dataset.inputs[row], dataset.phases[row], self.num_bones, phase, ratio,
+                             self.floor_per_frame(dataset, name))
+
+    def floor_per_frame(self, dataset, name: str) -> float:
+        """The least advance per frame (cycles) of each limb's local phase for a character of
+        dataset style ``name``: ``phase_floor`` times the style's capture rate
+        (:func:`capture_phase_rate`); 0 without a floor (the paper's runtime)."""
+        return self.phase_floor * capture_phase_rate(dataset, name) if self.phase_floor > 0 else 0.0
 
     @staticmethod
     def own_speed(dataset, rows: np.ndarray, units_per_meter: float, fps: float = 60.0) -> float:

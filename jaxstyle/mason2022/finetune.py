@@ -187,8 +187,8 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
         ref["speed_m_s"][s] = speed / upm
         clip_rows = rows[raw.clip[rows] == first_clip]
         start = clip_rows[np.argmin(raw.frame[clip_rows])]
-        floor = character.phase_floor * lpn_controller.capture_phase_rate(raw, new.styles[s])
-        state = lpn_controller.initial_state(raw.inputs[start], raw.phases[start], num_bones, phase_floor=floor)
+        state = lpn_controller.initial_state(raw.inputs[start], raw.phases[start], num_bones,
+                                             phase_floor=character.floor_per_frame(raw, new.styles[s]))
         control = loop.turning_path(frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
         clips = new.clips[new.train_clips[s]]
         for r in range(num_rates + 1):  # the last: the model before fine-tuning

@@ -240,6 +240,11 @@ class ModelRuns(NamedTuple):
     results: dict[str, dict[str, np.ndarray]]
 
 
+def model_folder(out: str | os.PathLike, name: str) -> Path:
+    """A Table 2 model's run folder inside ``out`` (its name with underscores: ``LPN_FiLM``)."""
+    return Path(out) / name.replace(" ", "_")
+
+
 def train_models(data: LPNData, names: Sequence[str], out: str | os.PathLike, deadline: float, *,
                  jobs_after: int = 0, max_epochs: int = 90, hidden: int = 512, generator_hidden: int = 2048,
                  filters: int = 256, train_config: dict | None = None, progress: bool = True,
@@ -260,7 +265,7 @@ def train_models(data: LPNData, names: Sequence[str], out: str | os.PathLike, de
     for i, name in enumerate(names):
         share = max(0.0, (deadline - time.perf_counter()) / (jobs - i))
         config = model_config(data.base, name, hidden=hidden, generator_hidden=generator_hidden, filters=filters)
-        folder = out / name.replace(" ", "_")
+        folder = model_folder(out, name)
         runs[name] = train_for(data, config, folder, Budget(share, max_epochs=max_epochs), name=name,
                                progress=progress, train_config=train_config)
         logs[name] = read_log(folder)

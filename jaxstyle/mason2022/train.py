@@ -234,8 +234,8 @@ def noisy_inputs(x_BxD: jax.Array, key: jax.Array, std) -> jax.Array:
     """``x + std * N(0, 1)`` (normalised inputs; ``std = 0`` returns ``x``). Not in the paper: at
     runtime the network reads its own previous output (pose, velocities, predicted trajectory),
     never exactly a captured row, and trained only on clean rows it learns to copy the input
-    pose forward; the closed loop then settles on a still pose (docs/mason2022.md, "Why the
-    closed loop freezes"). Noise on the inputs, with the clean next frame as the target, is the
+    pose forward; the closed loop then settles on a still pose (docs/mason2022.md, "The closed loop:
+    why it froze"). Noise on the inputs, with the clean next frame as the target, is the
     standard remedy for a model fed its own outputs (a denoising objective). An array, so sweeps
     vmap over it."""
     return x_BxD + std * jax.random.normal(key, x_BxD.shape, x_BxD.dtype)
@@ -254,8 +254,8 @@ def rollout_loss(params, config: StyleModelConfig, arrays, feedback, idx_B, styl
     frame. Gradients flow through the fed-back inputs (back-propagation through time).
 
     Why: the network trained only on captured inputs (the paper's recipe) learns to carry the
-    input pose forward, and its closed loop stalls on a still pose (docs/mason2022.md, "Why the
-    closed loop freezes"); exposed to its own outputs, it learns to step from them (the remedy
+    input pose forward, and its closed loop stalls on a still pose (docs/mason2022.md, "The closed loop:
+    why it froze"); exposed to its own outputs, it learns to step from them (the remedy
     of scheduled sampling, Bengio et al. 2015, and of the rollout losses of later character
     controllers). ``feedback``: ``(next_row, x_mean, x_std, y_mean, y_std)`` of
     :class:`StyleData`."""

@@ -172,14 +172,13 @@ def phase_figures(rollout, signal: paths.PathSignal, capture_rate: float) -> dic
     phases = np.asarray(getattr(rollout, "phases", np.zeros((0, 0))))
     if phases.ndim != 2 or phases.shape[1] != 8 or len(phases) < 3:
         return {}
-    capture = capture_rate
     start = int(round(signal.fps))
     moving = np.hypot(*np.asarray(signal.velocity, np.float64).T)[1:] > 1e-6
     advance = local_phase_advance(np.asarray(phases[:-1], np.float64), np.asarray(phases[1:], np.float64))
     use = moving & (np.arange(1, len(phases)) >= start)
-    if not use.any() or not capture > 0:
+    if not use.any() or not capture_rate > 0:
         return {"phase_rate_ratio": math.nan, "phases_stalled": None}
-    ratio = float(np.median(advance[use]) / capture)
+    ratio = float(np.median(advance[use]) / capture_rate)
     return {"phase_rate_ratio": ratio, "phases_stalled": bool(ratio < STALL_RATIO)}
 
 
@@ -354,8 +353,7 @@ def table(rows: list[dict]) -> list[str]:
     for r in sorted(rows, key=lambda r: (order[_model(r)], r["style"], r["path"] != "capture")):
         g = r.get
         path = f"capture ({r['capture_file']})" if r["path"] == "capture" and g("capture_file") else r["path"]
-        if g("phases_stalled") in (True, "True"):  # the closed loop froze: said, not hidden
-            path += f" {STALLED_MARK}"
+        path += stalled_mark(r)  # the closed loop froze: said, not hidden
         lines.append(
             f"| {_model(r)} | {r['style']} | {path} | {_f(r['foot_skating_m_s'])} / "
             f"{_f(r['foot_skating_bvh_m_s'])} / {_f(g('foot_skating_locked_m_s'))} | "
@@ -376,9 +374,20 @@ def _style_cell(r: dict) -> str:
     g = r.get
     if r["path"] == "capture":
         return f"{_f(g('style_halves_distance', math.nan))}, {_f(g('style_to_neutral', math.nan))}"
-    shows = g("style_shows")
-    mark = "" if shows is None or shows == "" else (" (shows)" if shows in (True, "True") else " (no)")
-    return f"{_f(g('style_distance', math.nan))}{mark}"
+    return f"{_f(g('style_distance', math.nan))}{shows_mark(r)}"
+
+
+def stalled_mark(r: dict) -> str:
+    """`` [PHASES STALLED]`` (:data:`STALLED_MARK`) for a row (or a CSV row) whose local phases
+    stalled (:func:`phase_figures`), else nothing."""
+    return f" {STALLED_MARK}" if r.get("phases_stalled") in (True, "True") else ""
+
+
+def shows_mark(r: dict) -> str:
+    """`` (shows)`` or `` (no)`` for a row (or a CSV row) whose ``style_shows`` is set
+    (:func:`style_figures`), else nothing (Neutral, the reference, and the captures' rows)."""
+    shows = r.get("style_shows")
+    return "" if shows is None or shows == "" else (" (shows)" if shows in (True, "True") else " (no)")
 
 
 def write_csv(rows: list[dict], path: str | os.PathLike) -> Path:

@@ -226,7 +226,7 @@ def quality_table(rows: list[dict]) -> list[str]:
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         g = r.get
-        path = r["path"] + (f" {quality.STALLED_MARK}" if g("phases_stalled") in (True, "True") else "")
+        path = r["path"] + quality.stalled_mark(r)
         lines.append(f"| {r['style']} | {path} | {_f(g('foot_skating_m_s'))} / {_f(g('foot_skating_bvh_m_s'))} / "
                      f"{_f(g('foot_skating_locked_m_s'))} | {_f(g('steps_per_s'))} | {_f(g('stance_fraction'))} "
                      f"| {_f(g('ik_foot_offset_max_m'), 3)} "
@@ -240,8 +240,7 @@ def quality_table(rows: list[dict]) -> list[str]:
 def _style(r: dict) -> str:
     """The style distance cell: the distance to the capture and whether the style shows (blank
     for a real clip's row and for Neutral, the reference)."""
-    d, shows = r.get("style_distance"), r.get("style_shows")
+    d = r.get("style_distance")
     if d is None or d == "":
         return ""
-    mark = "" if shows is None or shows == "" else (" (shows)" if shows in (True, "True") else " (no)")
-    return f"{_f(d)}{mark}"
+    return f"{_f(d)}{quality.shows_mark(r)}"

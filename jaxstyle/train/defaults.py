@@ -22,8 +22,8 @@ PHASE_FLOOR = 0.75
 capture rate (:func:`jaxstyle.control.lpn_controller.floored_phases`,
 :func:`jaxstyle.control.lpn_controller.capture_phase_rate`): 0 is the paper's runtime. 0.75
 is the lower edge of the band (within 25% of the capture's rate) a stepping character's phases
-should keep; measured on the demo's 100STYLE styles against 0.5 (docs/mason2022.md, "Why the
-closed loop freezes"), so the phase rate of a character run with it is not independent evidence
+should keep; measured on the demo's 100STYLE styles against 0.5 (docs/mason2022.md, "The closed loop:
+why it froze"), so the phase rate of a character run with it is not independent evidence
 that it steps: its steps per second, skating and style distance are."""
 
 
