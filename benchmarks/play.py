@@ -47,7 +47,7 @@ import jax
 import numpy as np
 
 from jaxstyle.control.controller import PFNNModel
-from jaxstyle.data import procedural
+from jaxstyle.data import folders, procedural
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
@@ -63,7 +63,7 @@ def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> models.P
     """A random PFNN of the demo's size with three random styles, on a procedural clip."""
     root = procedural.write_dataset(folder / "data", ["Neutral"], ["FW"], seconds=6.0)
     settings = pipeline.BaseSettings(data=str(root), styles=("Neutral",), hidden=hidden, rank=rank, epochs=1)
-    dataset = pipeline.build(pipeline.clip_specs(root, settings.styles, None), None)
+    dataset = pipeline.build(folders.clip_specs(root, settings.styles, None), None)
     layout = PFNNLayout((dataset.inputs.shape[1] - 48) // 6)
     config = pfnn.PFNNConfig(input_size=layout.input_size, output_size=layout.output_size, hidden_size=hidden,
                              rank=rank)
@@ -81,8 +81,6 @@ def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> models.P
 
 def random_lpn_model(folder: Path, hidden: int = 512) -> models.LPNPlayModel:
     """A random LPN-FiLM (``hidden`` units, the demo's FiLM generator preset) on two procedural styles."""
-    from jaxstyle.data import folders
-
     root = procedural.write_dataset(folder / "data", ["Neutral", "Crouched"], ["FW"], seconds=8.0, progress=False)
     styles, _ = folders.split_styles(root, [])
     data = pipeline2022.build_data(root, styles)
@@ -241,7 +239,7 @@ def learn_benchmark(run: Path, epochs: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         clip = _clip(run, 10.0, Path(tmp), "Proud10", "Proud/Proud_FR.bvh")
         base = pipeline.load_base(run / "base", progress=False)
-        specs = [dataclasses.replace(s, style="Proud10") for s in pipeline.user_clip_specs([clip], True, None)]
+        specs = [dataclasses.replace(s, style="Proud10") for s in folders.user_clip_specs([clip], True, None)]
         cells = []
         for e in (epochs, 40):
             result, _, _ = pipeline.run_sweep(base, specs, Path(tmp) / f"e{e}", epochs=e, progress=False, write=False)

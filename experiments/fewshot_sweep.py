@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 import jaxstyle as js
-from jaxstyle.data import datasets
+from jaxstyle.data import datasets, folders
 from jaxstyle.mason2018 import pipeline
 from jaxstyle.train.scan import DEFAULT_RATES
 
@@ -53,15 +53,15 @@ def main() -> None:
     parser.add_argument("--asymmetric", action="store_true", help="do not mirror the --clip files")
     args = parser.parse_args()
     try:  # the user's clips are checked before the base is trained
-        user = pipeline.user_clip_specs(args.clip, not args.asymmetric, args.clip_range and tuple(args.clip_range))
-    except pipeline.PipelineError as e:
+        user = folders.user_clip_specs(args.clip, not args.asymmetric, args.clip_range and tuple(args.clip_range))
+    except folders.PipelineError as e:
         raise SystemExit(f"error: {e}") from None
     mocap = js.mocap_dir()
     t0 = time.perf_counter()
     base = pipeline.train_base(pipeline.paper_base_settings(mocap, args.base_epochs), args.base, cache=args.cache)
     print(f"base ready in {time.perf_counter() - t0:.0f} s (this call)")
-    specs = user or pipeline.fewshot_specs(mocap / "100style", pipeline.PAPER_FEWSHOT, args.seconds,
-                                           pipeline.LOCOMOTION_GAITS)
+    specs = user or pipeline.fewshot_specs(mocap / "100style", folders.PAPER_FEWSHOT, args.seconds,
+                                           folders.LOCOMOTION_GAITS)
     print(f"\nfew-shot sets of {'your clips' if user else f'{args.seconds:g} s'}; rates {args.rates}; "
           f"{args.epochs} epochs")
     result, paths, _ = pipeline.run_sweep(

@@ -21,6 +21,7 @@ import argparse
 from pathlib import Path
 
 from jaxstyle.control import paths
+from jaxstyle.data import folders
 from jaxstyle.mason2018 import pipeline
 from jaxstyle.output import synthesis
 
@@ -56,7 +57,7 @@ def main() -> None:
         result = synthesis.synthesize(base.character_model(), chars, base.skeleton, a.out, synthesis.SynthesisOptions(
             path_names=tuple(a.paths), seconds=a.seconds, speed=a.speed, foot_lock=a.foot_lock, mp4=a.mp4,
             contact_sheet=True, progress=True))
-    except pipeline.PipelineError as e:
+    except folders.PipelineError as e:
         parser.error(f"{e} (run python experiments/fewshot_sweep.py first)")
     print("speeds (m/s): " + ", ".join(f"{n} {v:.2f}" for n, v in result.speeds.items()))
     print(f"\n{result.summary(len(chars), len(a.paths))}")

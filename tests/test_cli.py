@@ -107,7 +107,7 @@ def test_train_base_then_sweep_and_synthesize(demo_run, tiny_data, tmp_path, cap
     assert sorted(chosen) == ["Crouched_FW", "Limping_FW"]
     assert all(c["rate"] in (0.3, 0.5) for c in chosen.values())
     assert run_cli("synthesize", "--run", run, "--paths", "straight", "zigzag", "--synth-seconds", 1, "--blend",
-                   "--sets", "Crouched_FW", "Limping_FW", "--quiet", "--foot-ik", "--allow-failed") == 0
+                   "--sets", "Crouched_FW", "Limping_FW", "--quiet", "--allow-failed") == 0
     out = run / "synthesis"
     assert (out / "straight.gif").is_file() and (out / "zigzag.gif").is_file()
     names = sorted(p.stem for p in (out / "bvh").glob("*.bvh"))
@@ -116,7 +116,6 @@ def test_train_base_then_sweep_and_synthesize(demo_run, tiny_data, tmp_path, cap
         rows = list(csv.DictReader(f))
     # 8 characters x paths, then one real clip each of Neutral, Crouched and Limping
     assert len(rows) == 8 + 3 and "foot_skating_locked_m_s" in rows[0] and rows[0]["foot_lock"] == "True"
-    assert "--foot-ik is no longer needed" in capsys.readouterr().err  # the old flag still runs, and says so
     # a user clip as a new style
     clip = tiny_data / "Limping" / "Limping_FR.bvh"
     assert run_cli("sweep", "--run", run, "--clip", clip, "--clip-range", 0, 5, "--asymmetric", *TINY_SWEEP,

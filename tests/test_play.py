@@ -49,7 +49,7 @@ def tiny_model(folder: Path, styles=STYLES, seconds: float = 6.0, hidden: int = 
     the adapters are random too, so the styles differ."""
     root = procedural.write_dataset(folder / "data", list(styles), ["FW"], seconds=seconds)
     settings = pipeline.BaseSettings(data=str(root), styles=tuple(styles), hidden=hidden, rank=rank, epochs=1)
-    dataset = pipeline.build(pipeline.clip_specs(root, settings.styles, None), None)
+    dataset = pipeline.build(folders.clip_specs(root, settings.styles, None), None)
     layout = PFNNLayout((dataset.inputs.shape[1] - 48) // 6)
     config = pfnn.PFNNConfig(input_size=layout.input_size, output_size=layout.output_size, hidden_size=hidden,
                              rank=rank)

@@ -16,6 +16,7 @@ import pytest
 
 from jaxstyle.cli.common import CLIError, Run, lock_run
 from jaxstyle.cli.main import main
+from jaxstyle.data import folders
 from jaxstyle.data.folders import PipelineError
 from jaxstyle.mason2018 import fewshot, selection
 from jaxstyle.nn import pfnn
@@ -186,7 +187,7 @@ def test_a_clip_with_the_bases_joints_in_another_order_is_refused(tmp_path):
                              end_site_parents=np.array([where[p] for p in motion.end_site_parents], dtype=np.int64))
     clip = tmp_path / "Swapped.bvh"
     write_bvh(swapped, clip)
-    specs = pipeline.user_clip_specs([clip], False, None)
+    specs = folders.user_clip_specs([clip], False, None)
     with pytest.raises(PipelineError, match=rf"Swapped\.bvh: its joints are the base's in another order \(joint {a} "
                                             rf"is '{motion.names[b]}', the base's is '{motion.names[a]}'\)"):
         pipeline.run_sweep(base, specs, tmp_path / "sweep", epochs=1, rates=(0.3,), progress=False)

@@ -9,7 +9,6 @@ import importlib
 import math
 import os
 import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -379,14 +378,6 @@ def add_sweep_args(p: argparse.ArgumentParser, *, epochs: int) -> None:
                    help="faster mode: dropout on the adapter path only (see jaxstyle.mason2018.fewshot.SweepConfig)")
 
 
-class _FootIK(argparse.Action):
-    """``--foot-ik`` of earlier versions: foot locking is now on by default, so it only says so."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        print("note: --foot-ik is no longer needed: feet are locked while planted by default "
-              "(--no-foot-lock turns it off)", file=sys.stderr)
-
-
 def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds: float) -> None:
     from jaxstyle.control.paths import PATHS
 
@@ -396,7 +387,6 @@ def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds:
     p.add_argument("--no-foot-lock", dest="foot_lock", action="store_false",
                    help="write the network's feet as they are (by default they are locked while planted, in the BVH "
                         "files and the animations)")
-    p.add_argument("--foot-ik", action=_FootIK, nargs=0, help=argparse.SUPPRESS)
     p.add_argument("--mp4", action="store_true", help="also write MP4s (needs ffmpeg)")
     p.add_argument("--every", type=int, default=2, help="draw every n-th frame in the animations")
     p.add_argument("--allow-failed", action="store_true",

@@ -93,12 +93,12 @@ def fetch(args, run: None) -> None:
 
 
 def prepare(args, run: Run) -> None:
-    from jaxstyle.data import datasets
+    from jaxstyle.data import datasets, folders
     from jaxstyle.mason2018 import pipeline
 
-    root = pipeline.style_root(args.data)
-    styles = tuple(args.styles) if args.styles else pipeline.available_styles(root)
-    specs = pipeline.clip_specs(root, styles, args.gaits, args.max_seconds, joint_map(args))
+    root = folders.style_root(args.data)
+    styles = tuple(args.styles) if args.styles else folders.available_styles(root)
+    specs = folders.clip_specs(root, styles, args.gaits, args.max_seconds, joint_map(args))
     t0 = time.perf_counter()
     ds = pipeline.build(specs, run.dir / "cache", progress(args))
     run.say(f"PFNN rows of {root}: {len(ds.inputs):,} rows x {ds.inputs.shape[1]} inputs -> {ds.outputs.shape[1]} "

@@ -109,8 +109,7 @@ def demo_base_styles(base_styles: Sequence[str]) -> list[str]:
 
 def _data_root(args, run: Run) -> Path:
     """The style folder: procedural styles written to RUN/data, or --data (defaults adjusted)."""
-    from jaxstyle.data import procedural
-    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.data import folders, procedural
 
     if args.data is None:
         root = run.dir / "data"
@@ -124,12 +123,12 @@ def _data_root(args, run: Run) -> Path:
         if args.gaits is None:
             args.gaits = list(procedural.GAITS)
         return root
-    root = pipeline.style_root(args.data)
+    root = folders.style_root(args.data)
     run.say(f"data: {root}")
     if args.max_seconds is None:
         args.max_seconds = 20.0  # keeps the demo short on large folders; train-base uses everything
     if args.styles is None:
-        all_base, _ = pipeline.split_styles(root, args.fewshot_styles)
+        all_base, _ = folders.split_styles(root, args.fewshot_styles)
         args.styles = demo_base_styles(all_base)
         if len(args.styles) < len(all_base):
             run.say(f"the demo trains on {len(args.styles)} of the {len(all_base)} base styles "

@@ -70,6 +70,7 @@ def sweep_and_report(run: Run, args, base, specs):
 
 
 def run(args, run: Run) -> None:
+    from jaxstyle.data import folders
     from jaxstyle.mason2018 import pipeline
 
     check_positive(args, "seconds", "sweep_epochs")
@@ -79,13 +80,13 @@ def run(args, run: Run) -> None:
     root = Path(base.settings.data)
     jmap = user_map or base.settings.joint_map
     if args.clip:
-        specs = pipeline.user_clip_specs(args.clip, not args.asymmetric,
+        specs = folders.user_clip_specs(args.clip, not args.asymmetric,
                                          tuple(args.clip_range) if args.clip_range else None, jmap)
     else:
-        sets = args.sets or [s for s in pipeline.available_styles(root) if s not in base.settings.styles]
+        sets = args.sets or [s for s in folders.available_styles(root) if s not in base.settings.styles]
         if not sets:
             raise CLIError(f"the base was trained on every style of {root}: name few-shot --sets or give --clip files")
-        pipeline.split_styles(root, sets, base.settings.styles)  # checks the names
+        folders.split_styles(root, sets, base.settings.styles)  # checks the names
         specs = pipeline.fewshot_specs(root, sets, args.seconds, args.gaits or base.settings.gaits, jmap)
         if not specs:
             gaits = args.gaits or base.settings.gaits or ["(all)"]

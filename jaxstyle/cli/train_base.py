@@ -26,9 +26,10 @@ def add_arguments(p) -> None:
 
 def base_settings(args, root: Path):
     """The :class:`~jaxstyle.mason2018.pipeline.BaseSettings` of the arguments, and the held-out styles."""
+    from jaxstyle.data import folders
     from jaxstyle.mason2018 import pipeline
 
-    base_styles, held_out = pipeline.split_styles(root, args.fewshot_styles, args.styles)
+    base_styles, held_out = folders.split_styles(root, args.fewshot_styles, args.styles)
     gaits = tuple(args.gaits) if args.gaits else None
     settings = pipeline.BaseSettings(str(root), base_styles, gaits, hidden=args.hidden, rank=args.rank,
                                      epochs=args.base_epochs, max_seconds=args.max_seconds,
@@ -37,9 +38,10 @@ def base_settings(args, root: Path):
 
 
 def run(args, run: Run) -> None:
+    from jaxstyle.data import folders
     from jaxstyle.mason2018 import pipeline
 
-    root = pipeline.style_root(args.data)
+    root = folders.style_root(args.data)
     settings, held_out = base_settings(args, root)
     run.say(f"train-base on {machine()}; held out for few-shot: {', '.join(held_out)}")
     t0 = time.perf_counter()

@@ -38,21 +38,7 @@ import numpy as np
 from jaxstyle.control.controller import PFNNModel
 from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
-from jaxstyle.data.folders import (  # noqa: F401  (re-exported: the pipeline's data step)
-    DEMO_FEWSHOT,
-    LOCOMOTION_GAITS,
-    PAPER_BASE,
-    PAPER_FEWSHOT,
-    PipelineError,
-    available_styles,
-    clip_specs,
-    folder_specs,
-    located_path,
-    portable_path,
-    split_styles,
-    style_root,
-    user_clip_specs,
-)
+from jaxstyle.data.folders import PAPER_BASE, PipelineError, clip_specs, located_path, portable_path
 from jaxstyle.data.pfnn_features import PFNNLayout, valid_frames
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import fewshot, selection

@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
+from jaxstyle.data import folders
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.mason2018 import pipeline
 from jaxstyle.motion.bvh import read_bvh_names
@@ -159,7 +160,7 @@ class Learner:
         t0 = time.perf_counter()
         try:
             check_clip(path, self.model)
-            specs = pipeline.user_clip_specs([path], self.mirror, self.clip_range)
+            specs = folders.user_clip_specs([path], self.mirror, self.clip_range)
             specs = [dataclasses.replace(s, style=name) for s in specs]
             self._set_stage(STAGES[1])
             result, _, _ = pipeline.run_sweep(self.model.base, specs, learned_root(self.model.run_dir) / name,

@@ -34,6 +34,7 @@ from jaxstyle.control import loop
 from jaxstyle.control.controller import PFNNModel
 from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.control.model import batched_step_fn
+from jaxstyle.data import folders
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
@@ -48,7 +49,7 @@ PFNN = "pfnn"  # the model key of the 2018 PFNN (the 2022 models': jaxstyle.maso
 LPN_DIR = "lpn"  # under the run folder: the trained 2022 model (`jaxstyle lpn`, `jaxstyle demo --model lpn-film`)
 
 
-class PlayError(pipeline.PipelineError):
+class PlayError(folders.PipelineError):
     """Bad input to a play session (unknown style, bad blend, nothing recorded, ...), one line."""
 
 
