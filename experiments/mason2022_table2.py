@@ -100,7 +100,7 @@ def train(args) -> None:
     from jaxstyle.data.locate import mocap_dir
     from jaxstyle.mason2022 import pipeline, report
     from jaxstyle.mason2022 import synthesis as synthesis2022
-    from jaxstyle.output import quality
+    from jaxstyle.output import report as quality_report
 
     t0 = time.perf_counter()
     root = folders.style_root(args.data or mocap_dir() / "100style")
@@ -148,7 +148,7 @@ def train(args) -> None:
     print("\n".join(lines[2:]))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "table2.md").write_text("\n".join(lines) + "\n")
-    quality.write_csv(rows, args.out / "closed_loop.csv")
+    quality_report.write_csv(rows, args.out / "closed_loop.csv")
     print(f"written: {args.out / 'table2.md'}, {args.out / 'closed_loop.csv'}")
 
 

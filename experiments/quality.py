@@ -26,7 +26,7 @@ Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output)
    paper beside it for comparison); steps per second, stance fraction, slide per contact, how far
    the lock moved a foot, how deep a foot goes below the floor; feet on floor; bone error (network, BVH); the largest
    network-to-BVH joint distance; path error mean / final / final %; heading error; time to
-   stop; jitter; ankle jerk; each beside the style's capture; the targets checked (jaxstyle.output.quality.targets).
+   stop; jitter; ankle jerk; each beside the style's capture; the targets checked (jaxstyle.output.report.targets).
 6. Diagnosis (:func:`jaxstyle.output.diagnose.diagnose`) of the first base style and the first
    few-shot set.
 7. The 2022 models: every model trained into ``--lpn`` (a model's folder, or a
@@ -58,7 +58,7 @@ import jaxstyle as js
 from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, PipelineError, available_styles
 from jaxstyle.mason2018 import pipeline, selection
 from jaxstyle.mason2022 import synthesis as synthesis2022
-from jaxstyle.output import diagnose, preview, quality
+from jaxstyle.output import diagnose, preview, quality, report
 
 
 def model_dirs(folder: Path) -> list[Path]:
@@ -145,7 +145,7 @@ def main() -> None:
     t1 = time.perf_counter()
     rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds)
     t_lpn = time.perf_counter() - t1
-    checks = quality.targets(rows)
+    checks = report.targets(rows)
     diag = [diagnose.diagnose(base.params, base.normalisers, s, base.skeleton)
             for s in (subjects[0], *(s for s in subjects if s.kind == "few-shot"))][:2]
     upm = js.estimate_units_per_meter(base.skeleton)
@@ -157,13 +157,13 @@ def main() -> None:
             f"{settings.epochs} epochs, contacts {'on' if settings.contacts else 'off'}")
     timing = (f"base {t_base:.0f} s, sweep {t_sweep:.0f} s, rollouts and measures {t_measure:.0f} s, "
               f"2022 models {t_lpn:.0f} s, all {time.perf_counter() - t0:.0f} s")
-    lines = [f"# Motion quality ({size})", "", timing, "", *quality.table(rows), "", "## Targets", "",
-             *quality.target_summary(checks), "", "## Foot locking against the plain contact IK (same rollouts)", "",
-             *quality.lock_comparison(rows), "", "## Diagnosis", ""]
+    lines = [f"# Motion quality ({size})", "", timing, "", *report.table(rows), "", "## Targets", "",
+             *report.target_summary(checks), "", "## Foot locking against the plain contact IK (same rollouts)", "",
+             *report.lock_comparison(rows), "", "## Diagnosis", ""]
     for d in diag:
         lines += [*diagnose.diagnosis_lines(d), ""]
     (run / "quality.md").write_text("\n".join(lines) + "\n")
-    files = [quality.write_csv(rows, run / "quality.csv"), run / "quality.md", quality.plot(rows, run / "quality.png"),
+    files = [report.write_csv(rows, run / "quality.csv"), run / "quality.md", report.plot(rows, run / "quality.png"),
              sheet]
     print("\n".join(lines))
     print("written: " + ", ".join(map(str, files)))

@@ -143,7 +143,7 @@ def test_a_tiny_lpn_on_a_periodic_gait_keeps_stepping_for_10_s(tmp_path):
     from jaxstyle.labels.contacts import estimate_units_per_meter
     from jaxstyle.mason2022 import pipeline
     from jaxstyle.mason2022 import synthesis as synthesis2022
-    from jaxstyle.output import drive, quality
+    from jaxstyle.output import drive, quality, report
     from jaxstyle.train.defaults import PHASE_FLOOR
 
     styles = ["Neutral", "Crouched"]
@@ -177,9 +177,9 @@ def test_a_tiny_lpn_on_a_periodic_gait_keeps_stepping_for_10_s(tmp_path):
     capture = rows[PHASE_FLOOR][("Neutral", "capture")]["steps_per_s"]
     assert rows[PHASE_FLOOR][("Neutral", "straight")]["steps_per_s"] > 0.5 * capture
     assert rows[0.0][("Neutral", "straight")]["steps_per_s"] < 0.25 * capture
-    table = "\n".join(quality.table(list(rows[0.0].values())))
+    table = "\n".join(report.table(list(rows[0.0].values())))
     assert table.count(quality.STALLED_MARK) == 2
-    assert quality.STALLED_MARK not in "\n".join(quality.table(list(rows[PHASE_FLOOR].values())))
+    assert quality.STALLED_MARK not in "\n".join(report.table(list(rows[PHASE_FLOOR].values())))
 
 
 def test_pose_motion_is_zero_for_a_frozen_pose_whatever_the_root_does():

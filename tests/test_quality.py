@@ -24,7 +24,7 @@ from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2022 import pipeline
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import style_models
-from jaxstyle.output import footlock, metrics, quality, synthesis
+from jaxstyle.output import footlock, metrics, quality, report, synthesis
 from jaxstyle.output import style as style_lib
 from jaxstyle.output.synthesis import EXPORTED_FIGURES
 
@@ -125,8 +125,8 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
     np.testing.assert_allclose(cap["foot_skating_m_s"], metrics.reference_quality(clip).foot_skating_m_s, rtol=1e-9)
     assert np.isnan(cap["path_error_final_m"]) and cap["kind"] == "base"
     # reported with a model column; the skating targets against that model's capture row
-    assert quality.table(rows)[2].startswith("| LPN FiLM | Crouched | capture (Crouched_FW.bvh) | ")  # by model, style
-    checks = quality.targets(rows)
+    assert report.table(rows)[2].startswith("| LPN FiLM | Crouched | capture (Crouched_FW.bvh) | ")  # by model, style
+    checks = report.targets(rows)
     skating = [c for c in checks if c["target"].startswith("raw skating")]
     assert [c["model"] for c in skating] == ["LPN FiLM"] * 8
     np.testing.assert_allclose(skating[0]["limit"], 1.5 * cap["foot_skating_m_s"])
@@ -148,10 +148,10 @@ def test_demo_prints_the_benchmark_table_with_target_marks(loaded, tmp_path):
     assert {(r["style"], r["path"]) for r in rows} == {(s, p) for s in ("Neutral", "Crouched")
                                                        for p in (*quality.TARGET_PATHS, "capture")}
     text = "\n".join(said)
-    assert quality.table([])[0] in said and "| LPN FiLM | Neutral | straight | " in text
+    assert report.table([])[0] in said and "| LPN FiLM | Neutral | straight | " in text
     marks = [line for line in said if line.startswith("| LPN FiLM |") and line.endswith(("| pass |", "| FAIL |"))]
-    lock_marks = [line for line in marks if any(f"| {t} |" in line for t in quality.LOCK_TARGETS)]
-    assert len(lock_marks) == 2 * 4 * len(quality.LOCK_TARGETS)  # every row, every foot-locking target
+    lock_marks = [line for line in marks if any(f"| {t} |" in line for t in report.LOCK_TARGETS)]
+    assert len(lock_marks) == 2 * 4 * len(report.LOCK_TARGETS)  # every row, every foot-locking target
     for r in rows:  # the foot offset marks agree with the CSV
         if r["path"] != "capture":
             mark = "pass" if float(r["ik_foot_offset_max_m"]) <= 0.15 else "FAIL"

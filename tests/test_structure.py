@@ -43,6 +43,7 @@ def test_layers_contract_is_kept(tree_copy):
     ("mason2022/train.py", "from jaxstyle.mason2018 import fewshot"),
     ("cli/play.py", "from jaxstyle.cli.main import build_parser"),
     ("output/quality.py", "from jaxstyle.output import synthesis"),
+    ("output/quality.py", "from jaxstyle.output import report"),
     ("play/models.py", "from jaxstyle.play import session"),
     ("control/controller.py", "from jaxstyle.control import model"),
 ])

@@ -139,10 +139,10 @@ def _data_root(args, run: Run) -> Path:
 def report_quality(run: Run, args, measure, out: Path) -> Path:
     """Step 5: ``measure(path_names, seconds)`` (:func:`jaxstyle.output.quality.run` on the demo's
     characters of either model) along the benchmark's target
-    paths; print the benchmark's table (:func:`jaxstyle.output.quality.table`, as
+    paths; print the benchmark's table (:func:`jaxstyle.output.report.table`, as
     ``experiments/quality.py`` prints it), the foot-locking targets and the path and stop targets
-    with pass/FAIL marks (:func:`jaxstyle.output.quality.target_marks`); write the rows to ``out`` (CSV)."""
-    from jaxstyle.output import quality
+    with pass/FAIL marks (:func:`jaxstyle.output.report.target_marks`); write the rows to ``out`` (CSV)."""
+    from jaxstyle.output import quality, report
 
     t0 = time.perf_counter()
     rows, _ = measure(quality.TARGET_PATHS, args.synth_seconds)
@@ -151,12 +151,12 @@ def report_quality(run: Run, args, measure, out: Path) -> Path:
             f"each at each style's own speed; {elapsed(t0)}), the measures of experiments/quality.py (skating of the "
             "network's joints / the exported BVH / the BVH after foot locking, stepping after locking, beside each "
             "style's capture):")
-    checks = quality.targets(rows)
-    for line in ["", *quality.table(rows), "", *quality.target_marks(checks, quality.LOCK_TARGETS), "",
-                 *quality.target_marks(checks)]:
+    checks = report.targets(rows)
+    for line in ["", *report.table(rows), "", *report.target_marks(checks, report.LOCK_TARGETS), "",
+                 *report.target_marks(checks)]:
         run.say(line)
     out.parent.mkdir(parents=True, exist_ok=True)
-    return quality.write_csv(rows, out)
+    return report.write_csv(rows, out)
 
 
 def run_lpn(args, run: Run, root: Path, t_all: float) -> None:

@@ -357,7 +357,7 @@ def stop_times(origin_Tx2: np.ndarray, path_velocity_Tx2: np.ndarray, fps: float
     """Seconds from each stop command (the path's velocity falls to zero after moving) until the
     root's ground speed, averaged over ``window_s``, falls below ``threshold_m_s``; NaN where it
     never does before the path moves again (or ends). The benchmark's target
-    (:func:`jaxstyle.output.quality.targets`): within 0.5 s."""
+    (:func:`jaxstyle.output.report.targets`): within 0.5 s."""
     v = np.linalg.norm(np.asarray(path_velocity_Tx2, dtype=np.float64), axis=1)
     moving = v > 1e-9
     stops = np.flatnonzero(moving[:-1] & ~moving[1:]) + 1

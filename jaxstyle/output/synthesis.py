@@ -30,7 +30,7 @@ import numpy as np
 from jaxstyle.control.model import CharacterModel
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
-from jaxstyle.output import drive, export, footlock, measure, metrics, preview, quality
+from jaxstyle.output import drive, export, footlock, measure, metrics, preview, quality, report
 from jaxstyle.output.drive import Character
 
 
@@ -226,7 +226,7 @@ def quality_table(rows: list[dict]) -> list[str]:
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         g = r.get
-        path = r["path"] + quality.stalled_mark(r)
+        path = r["path"] + report.stalled_mark(r)
         lines.append(f"| {r['style']} | {path} | {_f(g('foot_skating_m_s'))} / {_f(g('foot_skating_bvh_m_s'))} / "
                      f"{_f(g('foot_skating_locked_m_s'))} | {_f(g('steps_per_s'))} | {_f(g('stance_fraction'))} "
                      f"| {_f(g('ik_foot_offset_max_m'), 3)} "
@@ -243,4 +243,4 @@ def _style(r: dict) -> str:
     d = r.get("style_distance")
     if d is None or d == "":
         return ""
-    return f"{_f(d)}{quality.shows_mark(r)}"
+    return f"{_f(d)}{report.shows_mark(r)}"
