@@ -166,7 +166,7 @@ def shows_mark(r: dict) -> str:
 
 
 def write_csv(rows: list[dict], path: str | os.PathLike) -> Path:
-    """The rows as CSV (the union of their keys as columns)."""
+    """The rows as CSV (columns: the union of the rows' keys, blank where absent)."""
     path = Path(path)
     fields = list(dict.fromkeys(k for r in rows for k in r))
     with open(path, "w", newline="") as f:

@@ -18,7 +18,6 @@ Used by ``jaxstyle synthesize`` / ``jaxstyle demo`` (:mod:`jaxstyle.cli`).
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import os
 from pathlib import Path
@@ -184,7 +183,7 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
             real = measure.capture_figures(capture.clip)
             rows.append({"style": c.title, "path": f"real ({Path(capture.spec.path).name})", **q.as_row(),
                          **{key: real[key] for key in EXPORTED_FIGURES}})
-    files.append(write_quality(rows, out / "quality.csv"))
+    files.append(report.write_csv(rows, out / "quality.csv"))
     return rows, files
 
 
@@ -194,17 +193,6 @@ EXPORTED_FIGURES = ("foot_skating_bvh_m_s", "foot_skating_locked_m_s", "steps_pe
                     "ankle_jerk_m_s3", "ankle_jerk_locked_m_s3")
 """The columns :func:`write_results` adds from :func:`jaxstyle.output.measure.measure`; the real
 clips' rows have the figures of their own skeleton there."""
-
-
-def write_quality(rows: list[dict], path: Path) -> Path:
-    """The quality rows as CSV (columns: the union of the rows' keys, blank where absent)."""
-    path = Path(path)
-    fields = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=fields, restval="")
-        writer.writeheader()
-        writer.writerows(rows)
-    return path
 
 
 def _f(v, digits: int = 2) -> str:
