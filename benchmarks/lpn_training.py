@@ -51,7 +51,22 @@ ROWS = 16384  # >= 128 rows per style for the batch-128 option
 
 # --- synthetic data and one model's step ---------------------------------------------------------
 
-def _data(T, mc, seed=0):
+def _rows_module():
+    """The module of the training rows in the code on ``sys.path``: ``jaxstyle.mason2022.styledata``
+    (``BonePositions``, ``StyleData``, ``device_arrays``, ``StaticBones``); the archived code of
+    ``--base`` 1508a4f has them in ``jaxstyle.mason2022.train``, under private names for the last two."""
+    import types
+
+    try:
+        from jaxstyle.mason2022 import styledata
+        return styledata
+    except ImportError:
+        from jaxstyle.mason2022 import train as T
+        return types.SimpleNamespace(BonePositions=T.BonePositions, StyleData=T.StyleData,
+                                     device_arrays=T._device_arrays, StaticBones=T._Static)
+
+
+def _data(D, mc, seed=0):
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(ROWS, mc.input_size)).astype(np.float32)
     y = rng.normal(size=(ROWS, mc.output_size)).astype(np.float32)
@@ -63,10 +78,10 @@ def _data(T, mc, seed=0):
     per = ROWS // mc.num_styles
     rows = tuple(np.arange(s * per, (s + 1) * per) for s in range(mc.num_styles))
     joints = 27  # 100STYLE's LPN bones: 26 bones of a 27-joint chain is the worst case for the loss
-    bones = T.BonePositions(0, np.full(3 * joints, 0.1, np.float32), np.zeros(3 * joints, np.float32),
+    bones = D.BonePositions(0, np.full(3 * joints, 0.1, np.float32), np.zeros(3 * joints, np.float32),
                             tuple([-1] + list(range(joints - 1))))
     train_clips = tuple(np.arange(2 * s, 2 * s + 2) % n_clips for s in range(mc.num_styles))
-    return T.StyleData(x, y, gate.astype(np.float32), clips, rows, rows, rows, train_clips,
+    return D.StyleData(x, y, gate.astype(np.float32), clips, rows, rows, rows, train_clips,
                        tuple(f"s{s}" for s in range(mc.num_styles)), bones)
 
 
@@ -83,9 +98,10 @@ def _step_runner(name: str, steps: int, batch: int, compute_dtype: str | None, m
     mc = mc or StyleModelConfig.paper(name, NUM_STYLES)
     lr = 1e-4 * (batch / 32) ** 0.5
     config = T.LPNTrainConfig(model=mc, batch_size=batch, learning_rate=lr)
-    data = _data(T, mc)
-    arrays = T._device_arrays(data)
-    bones = T._Static(data.bones)
+    styledata = _rows_module()
+    data = _data(styledata, mc)
+    arrays = styledata.device_arrays(data)
+    bones = styledata.StaticBones(data.bones)
     batches, styles, clips = T.epoch_batches(data, config, 0)
     reps = -(-steps // len(batches))
     batches, styles, clips = (np.concatenate([a] * reps)[:steps] for a in (batches, styles, clips))
@@ -161,8 +177,9 @@ def xla_cost(name: str) -> tuple[float, float]:
 
     mc = StyleModelConfig.paper(name, NUM_STYLES)
     config = T.LPNTrainConfig(model=mc)
-    data = _data(T, mc)
-    arrays, bones = T._device_arrays(data), T._Static(data.bones)
+    styledata = _rows_module()
+    data = _data(styledata, mc)
+    arrays, bones = styledata.device_arrays(data), styledata.StaticBones(data.bones)
     state = T.init_state(jax.random.PRNGKey(0), config)
     b, s, c = (np.asarray(a[:1]) for a in T.epoch_batches(data, config, 0))
     lowered = T._train_chunk.lower(state["params"], state["opt_state"], arrays, b, s, c,

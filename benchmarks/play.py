@@ -53,6 +53,7 @@ from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline
 from jaxstyle.mason2022 import pipeline as pipeline2022
+from jaxstyle.mason2022 import styledata
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn, style_models
 from jaxstyle.play import models
@@ -87,7 +88,7 @@ def random_lpn_model(folder: Path, hidden: int = 512) -> models.LPNPlayModel:
     config = pipeline2022.model_config(data.base, hidden=hidden, generator_hidden=512, filters=32)
     params = style_models.init_model(jax.random.PRNGKey(0), config)
     model = pipeline2022.Model(pipeline2022.MODEL, config, params,
-                               pipeline2022.train_lpn.style_data(data.base, data.skeleton))
+                               styledata.style_data(data.base, data.skeleton))
     return models.lpn_play_model(synthesis2022.Loaded(model, data, folder / "lpn", 0), folder)
 
 

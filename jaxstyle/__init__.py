@@ -29,7 +29,7 @@ _NAMES = {
     "CharacterModel": "control.model",
     "CharacterFrames": "motion.character_frame",
     "FiLMConfig": "nn.film_generator",
-    "FiLMFinetuneConfig": "mason2022.train",
+    "FiLMFinetuneConfig": "mason2022.finetune",
     "FootContacts": "labels.contacts",
     "FootJoints": "labels.contacts",
     "JaxstyleError": "errors",

@@ -9,6 +9,8 @@ import pytest
 from jaxstyle.control import lpn_controller
 from jaxstyle.data.datasets import consecutive_rows
 from jaxstyle.data.lpn_features import LPNLayout
+from jaxstyle.mason2022 import loss as lpn_loss
+from jaxstyle.mason2022 import styledata
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn.style_models import StyleModelConfig
@@ -20,7 +22,7 @@ def test_next_rows_and_rollout_starts_match_a_loop():
     frame = np.concatenate([np.arange(7), np.r_[0, 1, 2, 4, 5], np.arange(10, 16)])
     order = rng.permutation(len(clip))
     clip, frame = clip[order], frame[order]
-    nxt = train_lpn.next_rows(clip, frame)
+    nxt = styledata.next_rows(clip, frame)
     for i in range(len(clip)):
         want = [j for j in range(len(clip)) if clip[j] == clip[i] and frame[j] == frame[i] + 1]
         assert nxt[i] == (want[0] if want else -1)
@@ -29,7 +31,7 @@ def test_next_rows_and_rollout_starts_match_a_loop():
     assert pairs == [(i, int(nxt[i])) for i in range(len(clip)) if nxt[i] >= 0]
     rows = np.flatnonzero(~((clip == 2) & (frame == 13)))  # a hole in clip 2
     for steps in (0, 1, 3):
-        got = train_lpn.rollout_starts(rows, nxt, steps)
+        got = styledata.rollout_starts(rows, nxt, steps)
         want = []
         for r in rows:
             cur, ok = r, True
@@ -59,7 +61,7 @@ def test_fed_back_captured_output_is_the_captured_next_input(real):
     ds, _ = real
     layout = LPNLayout.of_inputs(ds.inputs.shape[1])
     j0 = layout.input_groups["joint_position"].start
-    nxt = train_lpn.next_rows(ds.clip, ds.frame)
+    nxt = styledata.next_rows(ds.clip, ds.frame)
     rows = np.flatnonzero(nxt >= 0)[::97]
     _, joints, phases = jax.vmap(lpn_controller.feed_back, in_axes=(0, 0, 0, None))(
         jnp.asarray(ds.inputs[rows, j0:], jnp.float32), jnp.asarray(ds.phases[rows], jnp.float32),
@@ -80,28 +82,28 @@ def test_rollout_loss_feeds_the_network_what_the_runtime_would(real):
     """Step 0 is batch_loss; step 1's input is the runtime's next input (lpn_controller.advance
     from a state at the captured row, the captured trajectory, the network's own joints and phases)."""
     ds, skeleton = real
-    data = train_lpn.style_data(ds, skeleton)
+    data = styledata.style_data(ds, skeleton)
     mc = _tiny(len(ds.styles))
     params = jax.tree.map(lambda v: v + 0.05 * jnp.sin(jnp.arange(v.size).reshape(v.shape) * 1.7),
                           train_lpn.init_state(jax.random.PRNGKey(1), train_lpn.LPNTrainConfig(model=mc))["params"])
     arrays = tuple(jnp.asarray(a) for a in (data.x, data.y, data.gate, data.clips))
     feedback = (jnp.asarray(np.maximum(data.next_row, 0)), *(jnp.asarray(a) for a in data.stats))
-    idx = jnp.asarray(train_lpn.rollout_starts(data.train_rows[0], data.next_row, 1)[:8])
+    idx = jnp.asarray(styledata.rollout_starts(data.train_rows[0], data.next_row, 1)[:8])
     key, clip, bones = jax.random.PRNGKey(3), int(data.train_clips[0][0]), data.bones
     zero = jnp.float32(0.0)
     def rollout_loss(steps):  # jitted: eager it takes seconds
-        return jax.jit(lambda p: train_lpn.rollout_loss(p, mc, arrays, feedback, idx, 0, clip, key, zero, bones, 1.0,
+        return jax.jit(lambda p: lpn_loss.rollout_loss(p, mc, arrays, feedback, idx, 0, clip, key, zero, bones, 1.0,
                                                         steps=steps))(params)
 
     l0, (m0, b0) = rollout_loss(0)
-    lb, (mb, bb) = train_lpn.batch_loss(params, mc, arrays, idx, 0, clip, key, zero, bones, 1.0)
+    lb, (mb, bb) = lpn_loss.batch_loss(params, mc, arrays, idx, 0, clip, key, zero, bones, 1.0)
     np.testing.assert_allclose([l0, m0, b0], [lb, mb, bb], rtol=1e-6)
 
     # the reference second frame, built by the runtime's advance from the de-normalised row
     from jaxstyle.nn import style_models
 
     xm, xs, ym, ys = (np.asarray(a) for a in data.stats)
-    style = train_lpn._style(params, mc, arrays[3], 0, clip, None, zero)
+    style = lpn_loss._style(params, mc, arrays[3], 0, clip, None, zero)
     y0 = style_models.model_apply(params, mc, arrays[0][idx], arrays[2][idx], style) * ys + ym
     j0 = LPNLayout.of_inputs(data.x.shape[1]).input_groups["joint_position"].start
     second_x, second_gate = [], []
@@ -114,7 +116,7 @@ def test_rollout_loss_feeds_the_network_what_the_runtime_would(real):
         second_gate.append(np.asarray(nxt_state.phases))
     y1 = style_models.model_apply(params, mc, jnp.asarray(np.stack(second_x)), jnp.asarray(np.stack(second_gate)),
                                   style)
-    m1, b1 = train_lpn.losses(y1, arrays[1][np.asarray(data.next_row)[np.asarray(idx)]], bones)
+    m1, b1 = lpn_loss.losses(y1, arrays[1][np.asarray(data.next_row)[np.asarray(idx)]], bones)
     l1, (mse1, bll1) = rollout_loss(1)
     np.testing.assert_allclose([mse1, bll1], [(m0 + m1) / 2, (b0 + b1) / 2], rtol=2e-4)
     np.testing.assert_allclose(l1, (m0 + b0 + m1 + b1) / 2, rtol=2e-4)

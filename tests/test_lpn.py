@@ -13,6 +13,8 @@ import pytest
 from jax.test_util import check_grads
 
 import jaxstyle as js
+from jaxstyle.mason2022 import finetune, styledata
+from jaxstyle.mason2022 import loss as lpn_loss
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import lpn, style_models
@@ -264,7 +266,7 @@ def test_bad_configs_are_refused():
 
 # --- training, testing and fine-tuning on synthetic data ---------------------------------------
 
-def synthetic_data(num_styles=3, rows=96, clips=4, seed=0) -> train_lpn.StyleData:
+def synthetic_data(num_styles=3, rows=96, clips=4, seed=0) -> styledata.StyleData:
     """Random rows whose outputs depend on the inputs and the style, 3 bones of positions."""
     rng = np.random.default_rng(seed)
     n = num_styles * rows
@@ -275,8 +277,8 @@ def synthetic_data(num_styles=3, rows=96, clips=4, seed=0) -> train_lpn.StyleDat
     gate = rng.normal(size=(n, 4)).astype(np.float32)
     clip_arr = np.concatenate([rng.normal(loc=s, size=(clips, 16, 6)) for s in range(num_styles)]).astype(np.float32)
     rows_of = [np.flatnonzero(style == s) for s in range(num_styles)]
-    bones = train_lpn.BonePositions(0, np.full(9, 0.1, np.float32), np.zeros(9, np.float32), (-1, 0, 1))
-    return train_lpn.StyleData(x, y, gate, clip_arr, tuple(r[:64] for r in rows_of), tuple(r[64:80] for r in rows_of),
+    bones = styledata.BonePositions(0, np.full(9, 0.1, np.float32), np.zeros(9, np.float32), (-1, 0, 1))
+    return styledata.StyleData(x, y, gate, clip_arr, tuple(r[:64] for r in rows_of), tuple(r[64:80] for r in rows_of),
                                tuple(r[80:] for r in rows_of), tuple(np.arange(s * clips, (s + 1) * clips)
                                                                      for s in range(num_styles)),
                                tuple(f"s{s}" for s in range(num_styles)), bones)
@@ -319,18 +321,18 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
     data = synthetic_data(num_styles=2, rows=96)
     config = small_config()
     params = style_models.init_model(KEY, config)
-    ft = train_lpn.FiLMFinetuneConfig(epochs=2, batch_size=8, learning_rate=1e-3, rates=(0.0, 0.3))
-    gens, per_step = train_lpn.finetune_film_sweep(params, config, data, ft, chunk_steps=5)  # 5+5+5+1 steps
+    ft = finetune.FiLMFinetuneConfig(epochs=2, batch_size=8, learning_rate=1e-3, rates=(0.0, 0.3))
+    gens, per_step = finetune.finetune_film_sweep(params, config, data, ft, chunk_steps=5)  # 5+5+5+1 steps
     assert per_step.shape == (2, 2, 16) and np.isfinite(per_step).all()
     # style 1, rate index 1, run alone through the same scan: the sweep is a vmap of single runs
-    batches, clips, mask = train_lpn.finetune_batches(data, ft)
+    batches, clips, mask = finetune.finetune_batches(data, ft)
     keys = jax.random.split(train_lpn.scan.pair_key(ft.seed, 1, 1), batches.shape[1])
     frozen = {k: v for k, v in params.items() if k != "style"}
-    arrays = train_lpn._device_arrays(data)
+    arrays = styledata.device_arrays(data)
 
     def loss_fn(gen, inputs, key):
         idx, clip = inputs
-        return train_lpn.batch_loss({**frozen, "style": {"generator": gen}}, config, arrays, idx, 0, clip, key,
+        return lpn_loss.batch_loss({**frozen, "style": {"generator": gen}}, config, arrays, idx, 0, clip, key,
                                     jnp.float32(0.3), data.bones, jnp.float32(1.0))[0]
 
     gen0 = params["style"]["generator"]
@@ -359,8 +361,8 @@ def test_style_data_positions_are_the_skeletons_bones_in_metres(real_data):
     from jaxstyle.motion.kinematics import bone_lengths
 
     ds, skeleton = real_data
-    data = train_lpn.style_data(ds, skeleton)
-    pos = np.asarray(train_lpn.positions_m(jnp.asarray(data.y[:500]), data.bones))
+    data = styledata.style_data(ds, skeleton)
+    pos = np.asarray(lpn_loss.positions_m(jnp.asarray(data.y[:500]), data.bones))
     parents = np.asarray(data.bones.parents)
     joints = np.flatnonzero(parents[:skeleton.num_joints] >= 0)
     lengths = np.linalg.norm(pos[:, joints] - pos[:, parents[joints]], axis=-1)
@@ -368,13 +370,13 @@ def test_style_data_positions_are_the_skeletons_bones_in_metres(real_data):
                                atol=2e-3)  # float32 features; 100STYLE is in centimetres
     assert float(lpn.bone_length_loss(pos, pos, data.bones.parents)) == 0.0
     # MANN gating input: the 4 end effectors' velocities, taken from the normalised input
-    mann = train_lpn.style_data(ds, skeleton, backbone="mann")
+    mann = styledata.style_data(ds, skeleton, backbone="mann")
     assert mann.gate.shape == (len(ds.inputs), 12)
     # PFNN backbones: the gate is each row's global phase; a dataset without one is refused
-    pfnn = train_lpn.style_data(ds, skeleton, backbone="pfnn")
+    pfnn = styledata.style_data(ds, skeleton, backbone="pfnn")
     np.testing.assert_array_equal(pfnn.gate[:, 0], np.asarray(ds.global_phase, np.float32))
     with pytest.raises(ValueError, match="global phase"):
-        train_lpn.style_data(dataclasses.replace(ds, global_phase=np.zeros(0)), skeleton, backbone="pfnn")
+        styledata.style_data(dataclasses.replace(ds, global_phase=np.zeros(0)), skeleton, backbone="pfnn")
 
 
 def test_training_clips_lie_in_training_rows(real_data):
@@ -392,7 +394,7 @@ def test_training_clips_lie_in_training_rows(real_data):
 @pytest.mark.slow  # python -m pytest -m slow; the default run covers the same code more cheaply
 def test_a_small_model_trains_on_real_clips(real_data):
     ds, skeleton = real_data
-    data = train_lpn.style_data(ds, skeleton)
+    data = styledata.style_data(ds, skeleton)
     mc = StyleModelConfig(num_styles=2, hidden_size=16, num_experts=2, gating_hidden=8,
                           generator=film.FiLMConfig(filters=4, width=5, hidden=16, film_size=64))
     config = train_lpn.LPNTrainConfig(model=mc, epochs=1, learning_rate=1e-3, log_every=40)

@@ -21,8 +21,7 @@ from jaxstyle.control.model import rollout
 from jaxstyle.data import procedural
 from jaxstyle.data.folders import PipelineError
 from jaxstyle.data.lpn_features import bone_points
-from jaxstyle.mason2022 import finetune, pipeline, report
-from jaxstyle.mason2022 import train as train_lpn
+from jaxstyle.mason2022 import finetune, pipeline, report, styledata
 from jaxstyle.nn import film_generator as film
 from jaxstyle.output import check as check_lib
 from jaxstyle.train.defaults import PHASE_FLOOR
@@ -156,6 +155,6 @@ def test_train_lpn_style_data_of_clips_normalises_with_the_base(folders, model):
     data, m = model
     data = finetune.user_clip_data(data, [clip], cache=cache)  # mirrored: two clips, one style
     assert len(data.new.specs) == 2 and data.new.styles == ("Limping_FW",)
-    new = train_lpn.style_data(data.new, data.skeleton, base=data.base)
+    new = styledata.style_data(data.new, data.skeleton, base=data.base)
     x_norm, _ = data.base.normalisers()
     np.testing.assert_allclose(new.x, x_norm.apply(data.new.inputs), rtol=1e-5, atol=1e-5)

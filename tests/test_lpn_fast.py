@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxstyle.mason2022 import loss as lpn_loss
+from jaxstyle.mason2022 import styledata
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
@@ -28,12 +30,12 @@ def _inputs(data, config, steps):
 def _reference_steps(params, config, data, steps):
     """The steps through the masked :func:`scan.train_scan` driver, nothing donated (the code
     before the fast path)."""
-    arrays, bones = train_lpn._device_arrays(data), data.bones
+    arrays, bones = styledata.device_arrays(data), data.bones
     b, s, c, keys = _inputs(data, config, steps)
 
     def loss_fn(p, inputs, key):
         idx, style, clip = inputs
-        return train_lpn.batch_loss(p, config.model, arrays, idx, style, clip, key, jnp.float32(config.dropout_rate),
+        return lpn_loss.batch_loss(p, config.model, arrays, idx, style, clip, key, jnp.float32(config.dropout_rate),
                                     bones, jnp.float32(config.bone_loss_weight))
 
     opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
@@ -46,9 +48,9 @@ def _fast_steps(params, config, data, steps, compute_dtype="float32"):
     opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
     copy = jax.tree.map(jnp.copy, params)  # donated
     p, _, out = train_lpn._train_chunk(
-        copy, opt, train_lpn._device_arrays(data), *_inputs(data, config, steps),
+        copy, opt, styledata.device_arrays(data), *_inputs(data, config, steps),
         jnp.float32(config.dropout_rate), jnp.float32(config.bone_loss_weight), config=config.model,
-        bones=train_lpn._Static(data.bones), learning_rate=config.learning_rate, compute_dtype=compute_dtype)
+        bones=styledata.StaticBones(data.bones), learning_rate=config.learning_rate, compute_dtype=compute_dtype)
     assert all(v.is_deleted() for v in jax.tree.leaves(copy))  # donated: updated in place, not copied
     return p, np.asarray(out[:, 0])
 
@@ -80,11 +82,11 @@ def test_train_one_epoch_equals_the_reference_steps():
     state = train_lpn.train(data, config, progress=False)
     batches, styles, clips = train_lpn.epoch_batches(data, config, 0)
     keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(config.seed), 0), len(batches))
-    arrays = train_lpn._device_arrays(data)
+    arrays = styledata.device_arrays(data)
 
     def loss_fn(p, inputs, key):
         idx, style, clip = inputs
-        return train_lpn.batch_loss(p, config.model, arrays, idx, style, clip, key, jnp.float32(0.3), data.bones,
+        return lpn_loss.batch_loss(p, config.model, arrays, idx, style, clip, key, jnp.float32(0.3), data.bones,
                                     jnp.float32(1.0))
 
     opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
@@ -133,7 +135,7 @@ def test_bfloat16_products_stay_within_bfloat16_precision():
     pass too, so the test also checks the compiled step holds bfloat16 products."""
     data, config = synthetic_data(), _config()
     params = train_lpn.init_state(jax.random.PRNGKey(0), config)["params"]
-    arrays, bones = train_lpn._device_arrays(data), train_lpn._Static(data.bones)
+    arrays, bones = styledata.device_arrays(data), styledata.StaticBones(data.bones)
     b, s, c, keys = _inputs(data, config, 1)
 
     def loss(p, dtype):

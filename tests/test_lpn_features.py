@@ -109,7 +109,7 @@ def test_lpn_dataset_global_phase_equals_the_labeller_on_the_same_frames(tmp_pat
     """Built (and reloaded from its cache), an LPN dataset's ``global_phase`` equals the labeller
     run on each clip (mirrored copies included) at each row's frame; the local phases stay 8 columns."""
     from jaxstyle.data import datasets, procedural
-    from jaxstyle.mason2022 import train as train_lpn
+    from jaxstyle.mason2022 import styledata
 
     root = procedural.write_dataset(tmp_path / "p", ["Neutral", "Limping"], ("FW",), seconds=8)
     specs = datasets.specs_100style(root, gaits=("FW",))
@@ -122,12 +122,12 @@ def test_lpn_dataset_global_phase_equals_the_labeller_on_the_same_frames(tmp_pat
             labels = js.global_phase(datasets.load_clip(spec)).astype(np.float32)
             np.testing.assert_array_equal(ds.global_phase[rows], labels[ds.frame[rows]])
     skeleton = datasets.load_clip(ds.specs[0])
-    data = train_lpn.style_data(ds, skeleton, backbone="pfnn")
+    data = styledata.style_data(ds, skeleton, backbone="pfnn")
     np.testing.assert_array_equal(data.gate, ds.global_phase[:, None])
-    np.testing.assert_array_equal(train_lpn.style_data(ds, skeleton).gate, ds.phases)  # the LPN's: local phases
+    np.testing.assert_array_equal(styledata.style_data(ds, skeleton).gate, ds.phases)  # the LPN's: local phases
     stale = dataclasses.replace(ds, global_phase=np.zeros(0, np.float32))  # a cache from before the field
     with pytest.raises(ValueError, match="global phases for"):
-        train_lpn.style_data(stale, skeleton, backbone="pfnn")
+        styledata.style_data(stale, skeleton, backbone="pfnn")
 
 
 def test_layout_of_an_input_size_round_trips_and_refuses_other_sizes():

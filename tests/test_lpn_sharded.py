@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = textwrap.dedent("""
     import sys
     import jax, jax.numpy as jnp, numpy as np
+    from jaxstyle.mason2022 import styledata
     from jaxstyle.mason2022 import train as T
     from jaxstyle.train import shard
     from tests.test_lpn import small_config, synthetic_data
@@ -36,11 +37,11 @@ SCRIPT = textwrap.dedent("""
     def step(mesh):
         state = T.init_state(jax.random.PRNGKey(0), config)
         p, o = shard.replicate((state["params"], state["opt_state"]), mesh)
-        arrays = shard.replicate(T._device_arrays(data), mesh)
+        arrays = shard.replicate(styledata.device_arrays(data), mesh)
         b = shard.shard_batches(batches[:1], mesh)
         s, c, k = shard.replicate((jnp.asarray(styles[:1]), jnp.asarray(clips[:1]), keys), mesh)
         return T._train_chunk(p, o, arrays, b, s, c, k, jnp.float32(0.3), jnp.float32(1.0), config=config.model,
-                              bones=T._Static(data.bones), learning_rate=config.learning_rate)
+                              bones=styledata.StaticBones(data.bones), learning_rate=config.learning_rate)
     one, sharded = step(None), step(mesh)
     assert len(shard.shard_batches(batches[:1], mesh).sharding.device_set) == 4
     assert len(sharded[0]["synthesis"]["l0"]["W"].sharding.device_set) == 4

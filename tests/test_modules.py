@@ -210,7 +210,7 @@ def test_pfnn_module_errors(pfnn_data, pfnn_model):
 # --- LPN FiLM -----------------------------------------------------------------------------------
 
 def _film_pure(params, x, gate, clip, key, rate):
-    """The training composition of jaxstyle.mason2022.train.batch_loss: the generator on the clip,
+    """The training composition of jaxstyle.mason2022.loss.batch_loss: the generator on the clip,
     then the model, the key split between them."""
     k_style, k_model = jax.random.split(key)
     st = film.generator_apply(params["style"]["generator"], clip, key=k_style, dropout_rate=rate)

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from jaxstyle.data import folders, procedural
-from jaxstyle.mason2018 import pipeline as pipeline2018
 from jaxstyle.mason2022 import finetune, pipeline, report
 from jaxstyle.output import check as check_lib
 
@@ -25,11 +24,6 @@ def tiny(tmp_path_factory):
 def test_choose_rates_takes_the_lowest_finite_loss_else_the_first():
     loss = np.array([[0.3, 0.1, 0.2], [np.nan, np.nan, np.nan], [0.5, np.nan, 0.4], [0.2, 0.2, 0.3]])
     assert check_lib.choose_rates(loss)[0].tolist() == [1, 0, 2, 0]
-
-
-def test_the_2018_pipeline_reexports_the_folder_functions():
-    for name in ("style_root", "split_styles", "clip_specs", "available_styles", "PipelineError", "PAPER_FEWSHOT"):
-        assert getattr(pipeline2018, name) is getattr(folders, name)
 
 
 def test_build_train_finetune_select_report(tiny, tmp_path):

@@ -31,6 +31,7 @@ from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import pipeline
 from jaxstyle.mason2022 import finetune as finetune2022
 from jaxstyle.mason2022 import pipeline as pipeline2022
+from jaxstyle.mason2022 import styledata
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.motion.bvh import read_bvh
 from jaxstyle.nn import film_generator, pfnn, style_models
@@ -414,11 +415,11 @@ def tiny_lpn_model(folder: Path) -> models.LPNPlayModel:
     config = pipeline2022.model_config(data.base, hidden=8, generator_hidden=16, filters=4)
     params = random_params(config)
     model = pipeline2022.Model(pipeline2022.MODEL, config, params,
-                               pipeline2022.train_lpn.style_data(data.base, data.skeleton))
+                               styledata.style_data(data.base, data.skeleton))
     gens = jax.tree.map(lambda v: np.stack([np.stack([np.asarray(v) + 0.01, np.asarray(v) - 0.02])]),
                         params["style"]["generator"])
     after = {split: {"mse": np.full((1, 2), 0.5), "bll": np.full((1, 2), 0.01)} for split in finetune2022.SPLITS}
-    new = pipeline2022.train_lpn.style_data(data.new, data.skeleton, base=data.base)
+    new = styledata.style_data(data.new, data.skeleton, base=data.base)
     result = finetune2022.FinetuneResult(("Limping",), (0.1, 0.5), gens, 0, 0.0, {}, after, np.array([1]), new)
     finetune2022.write_finetune(result, folder / "lpn")
     return models.lpn_play_model(synthesis2022.Loaded(model, data, folder / "lpn", 0), folder)
@@ -445,7 +446,7 @@ def test_lpn_styles_are_the_film_vectors_of_the_training_and_finetuned_styles(lp
                                    _film_vector(lpn_model, m.params["style"]["generator"], m.data, name),
                                    rtol=1e-5, atol=1e-6)
     # the new style: under its chosen rate's generator (index 1: the model's minus 0.02)
-    new = pipeline2022.train_lpn.style_data(lpn_model.loaded.data.new, lpn_model.skeleton,
+    new = styledata.style_data(lpn_model.loaded.data.new, lpn_model.skeleton,
                                             base=lpn_model.loaded.data.base)
     tuned = jax.tree.map(lambda v: np.asarray(v) - 0.02, m.params["style"]["generator"])
     np.testing.assert_allclose(lpn_model.styles["Limping"].conditioning, _film_vector(lpn_model, tuned, new, "Limping"),
@@ -542,7 +543,7 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
     data = lpn_model.loaded.data
     config = pipeline2022.model_config(data.base, "PFNN FiLM", hidden=8, generator_hidden=16, filters=4)
     model = pipeline2022.Model("PFNN FiLM", config, random_params(config, seed=2),
-                               pipeline2022.train_lpn.style_data(data.base, data.skeleton, backbone="pfnn"))
+                               styledata.style_data(data.base, data.skeleton, backbone="pfnn"))
     m = models.lpn_play_model(synthesis2022.Loaded(model, data, lpn_model.run_dir / "pfnn", 0), lpn_model.run_dir)
     assert m.key == "pfnn-film" and set(m.styles) == {"Neutral", "Crouched"}
     x_norm, y_norm = data.base.normalisers()

@@ -21,7 +21,7 @@ from jaxstyle.control import paths
 from jaxstyle.data import datasets, folders, procedural
 from jaxstyle.data.lpn_features import decode_lpn
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import pipeline, styledata
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import style_models
 from jaxstyle.output import footlock, metrics, quality, report, synthesis
@@ -42,7 +42,7 @@ def loaded(tmp_path_factory):
     styles, new_styles = folders.split_styles(root, [])
     data = pipeline.build_data(root, styles, new_styles, cache=run / "cache")
     config = pipeline.model_config(data.base, hidden=8, generator_hidden=16, filters=4)
-    style_data = pipeline.train_lpn.style_data(data.base, data.skeleton, backbone=config.backbone)
+    style_data = styledata.style_data(data.base, data.skeleton, backbone=config.backbone)
     # random weights in the model's tree (jax.eval_shape: no per-shape initialiser compiles)
     rng = np.random.default_rng(0)
     params = jax.tree.map(lambda v: (0.1 * rng.standard_normal(v.shape)).astype(v.dtype),

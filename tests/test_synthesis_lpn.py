@@ -16,7 +16,7 @@ from jaxstyle.cli.main import main
 from jaxstyle.control import paths
 from jaxstyle.data import folders, procedural
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2022 import finetune, pipeline
+from jaxstyle.mason2022 import finetune, pipeline, styledata
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import metrics, synthesis
 from jaxstyle.output.drive import blend_character
@@ -41,7 +41,7 @@ def run_dir(tmp_path_factory):
     gen = model.params["style"]["generator"]
     gens = jax.tree.map(lambda v: np.stack([np.stack([np.asarray(v) + 0.01, np.asarray(v) - 0.02])]), gen)
     after = {split: {"mse": np.full((1, 2), 0.5), "bll": np.full((1, 2), 0.01)} for split in finetune.SPLITS}
-    new = pipeline.train_lpn.style_data(data.new, data.skeleton, base=data.base)
+    new = styledata.style_data(data.new, data.skeleton, base=data.base)
     result = finetune.FinetuneResult(("Limping",), (0.1, 0.5), gens, 0, 0.0, {}, after, np.array([1]), new)
     finetune.write_finetune(result, run / "lpn")
     return run, model, data, result

@@ -299,7 +299,7 @@ def feed_back(joints: jax.Array, phases: jax.Array, y: jax.Array, num_bones: int
     smoothed bone positions (``joint_smooth``, see :func:`advance`), the next joint features
     ``(12 B,)`` re-expressed in ``C_{t+1}`` (the ground frame the output's first trajectory sample
     gives) and the blended local phases ``(P~_{t+1} + P_t + dP) / 2``. The runtime
-    (:func:`advance`) and rollout training (:func:`jaxstyle.mason2022.train.rollout_loss`, under
+    (:func:`advance`) and rollout training (:func:`jaxstyle.mason2022.loss.rollout_loss`, under
     ``vmap``) share it, so training feeds the network exactly what the closed loop will."""
     g = LPNLayout(num_bones).output_groups
     s = jnp.asarray(joint_smooth, y.dtype)

@@ -2,4 +2,5 @@
 
 from jaxstyle._lazy import lazy_module
 
-__getattr__, __dir__ = lazy_module(__name__, ["train", "pipeline"])
+__getattr__, __dir__ = lazy_module(__name__, ["styledata", "loss", "train", "finetune", "pipeline", "synthesis",
+                                                   "report"])

@@ -1,6 +1,8 @@
 """New styles for a trained 2022 model (Mason, Starke & Komura 2022 section 5): its FiLM generator
 alone fine-tuned on a new style's clips for every (new style, dropout rate) pair in one compiled
-program (:func:`generator_sweep`), every pair validated and driven closed-loop with the model's
+``vmap`` x ``vmap`` of :func:`jaxstyle.train.scan.train_scan`, as the 2018 few-shot sweep
+(:func:`finetune_film_sweep`; tested with the model as it was by :func:`generator_sweep`), every
+pair validated and driven closed-loop with the model's
 :class:`jaxstyle.control.lpn_controller.StyleNetModel` (:func:`closed_loop_check`; the measures,
 pass rule and rate choice are the 2018 sweep's, :mod:`jaxstyle.output.check`), the user's own clips
 as new styles (:func:`user_clip_data`, :func:`finetune_clips`), and the files written
@@ -17,20 +19,115 @@ from pathlib import Path
 from typing import NamedTuple, Sequence
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxstyle.data import datasets
 from jaxstyle.data.folders import PipelineError, user_clip_specs
+from jaxstyle.mason2022 import styledata
 from jaxstyle.mason2022 import train as train_lpn
+from jaxstyle.mason2022.loss import batch_loss
 from jaxstyle.mason2022.pipeline import LPNData, Model
+from jaxstyle.mason2022.styledata import StaticBones, StyleData, bones_of, device_arrays
 from jaxstyle.nn import film_generator as film
+from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output.check import choose_rates, failed_criteria
-from jaxstyle.train import defaults
+from jaxstyle.train import defaults, scan
 from jaxstyle.train.checkpoint import json_text
 from jaxstyle.train.defaults import FILM_DEFAULT_RATES
 
 FINETUNE_RATES = FILM_DEFAULT_RATES
 """Dropout rates of the FiLM fine-tuning sweep."""
+
+
+# --- the sweep: the FiLM generator fine-tuned for every (new style, dropout rate) ----------------
+
+
+@dataclasses.dataclass(frozen=True)
+class FiLMFinetuneConfig:
+    """Fine-tuning of the FiLM generator on new styles, every style x dropout rate in one program."""
+
+    epochs: int = 10
+    batch_size: int = 32
+    learning_rate: float = 1e-4
+    rates: tuple[float, ...] = FILM_DEFAULT_RATES
+    bone_loss_weight: float = 1.0
+    max_steps: int | None = None
+    seed: int = 0
+
+
+def finetune_batches(data: StyleData, config: FiLMFinetuneConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(S, T, B)`` rows, ``(S, T)`` clips and ``(S, T)`` masks for every style of ``data``: the
+    few-shot sweep's per-style batches (:func:`jaxstyle.train.scan.sweep_batches`), capped at
+    ``max_steps``, with one random training clip of the style per step."""
+    batches, mask = scan.sweep_batches(data.train_rows, config.epochs, config.batch_size, config.seed)
+    if config.max_steps is not None:
+        batches, mask = batches[:, :config.max_steps], mask[:, :config.max_steps]
+    clips = np.stack([np.random.default_rng([config.seed, s, 11]).choice(c, size=batches.shape[1])
+                      for s, c in enumerate(data.train_clips)]).astype(np.int32)
+    return batches, clips, mask
+
+
+@dataclasses.dataclass(frozen=True)
+class GeneratorLoss:
+    """The loss of one (style, rate) cell of :func:`finetune_film_sweep` for
+    :func:`jaxstyle.train.scan.grid_sweep`: the trainable tree is the FiLM generator, ``frozen``
+    ``{"params": the network without "style", "arrays": (x, y, gate, clips)}``, the step input
+    ``(rows, clip)``, ``hparams`` ``{"weight"}`` (the bone-length loss weight)."""
+
+    config: StyleModelConfig
+    bones: StaticBones
+
+    def __call__(self, generator, frozen, inputs, key, rate, hparams):
+        idx, clip = inputs
+        params = {**frozen["params"], "style": {"generator": generator}}
+        return batch_loss(params, self.config, frozen["arrays"], idx, 0, clip, key, rate, bones_of(self.bones),
+                          hparams["weight"])[0]
+
+
+class FilmSweep(NamedTuple):
+    """The fine-tuned FiLM ``generators`` (leading axes ``(S, R)``: new style, dropout rate) and the
+    per-step training ``losses`` ``(S, R, T)`` of :func:`finetune_film_sweep`."""
+
+    generators: dict
+    losses: np.ndarray
+
+
+def finetune_film_sweep(params: dict, config: StyleModelConfig, data: StyleData,
+                        finetune: FiLMFinetuneConfig = FiLMFinetuneConfig(), *, chunk_steps: int | None = None,
+                        progress: bool = False, shard: bool = False) -> FilmSweep:
+    """Fine-tune the FiLM generator on every style of ``data`` (new styles, normalised with the
+    base statistics) at every rate of ``finetune.rates``, the synthesis network and gating frozen
+    (broadcast to all pairs; gradients for the generator only). Returns generators stacked
+    ``(S, R, ...)`` and per-step losses ``(S, R, T)`` (NaN on padded steps). Keys depend only on
+    the seed, the style's index and the rate's index, as in the 2018 sweep; both sweeps are
+    :func:`jaxstyle.train.scan.grid_sweep` with their own loss.
+
+    ``chunk_steps`` runs the steps in chunks (one compiled program, called once per chunk, the
+    last chunk padded with masked steps) so ``progress=True`` can move a bar; same result.
+    ``shard=True`` spreads the style axis over all devices; same result."""
+    if config.modulation != "film":
+        raise ValueError(f"fine-tuning the FiLM generator needs a FiLM model, got {config.modulation!r}")
+    batches, clips, mask = finetune_batches(data, finetune)
+    num_styles, num_rates, steps = batches.shape[0], len(finetune.rates), batches.shape[1]
+    keys = jnp.stack([jnp.stack([jax.random.split(scan.pair_key(finetune.seed, s, r), steps)
+                                 for r in range(num_rates)]) for s in range(num_styles)])
+    frozen = {"params": {k: v for k, v in params.items() if k != "style"}, "arrays": device_arrays(data)}
+    gens = jax.tree.map(lambda v: jnp.broadcast_to(v, (num_styles, num_rates) + v.shape),
+                        params["style"]["generator"])
+    gens, per_step = scan.grid_sweep(
+        GeneratorLoss(config, StaticBones(data.bones)), gens, frozen, (batches, clips), mask, keys,
+        jnp.asarray(finetune.rates, jnp.float32), learning_rate=finetune.learning_rate,
+        hparams={"weight": jnp.float32(finetune.bone_loss_weight)}, chunk_steps=chunk_steps, shard=shard,
+        progress=progress, desc=f"FiLM fine-tuning {num_styles} styles x {num_rates} rates")
+    return FilmSweep(gens, np.asarray(per_step))
+
+
+def with_generator(params: dict, generators: dict, style: int, rate: int) -> dict:
+    """``params`` with the fine-tuned generator of one (style, rate) pair of the sweep."""
+    return {**params, "style": {"generator": jax.tree.map(lambda v: v[style, rate], generators)}}
+
+
 @dataclasses.dataclass(frozen=True)
 class FinetuneResult:
     """A FiLM fine-tuning sweep: ``generators`` with leading axes ``(style, rate)``; ``before``
@@ -45,7 +142,7 @@ class FinetuneResult:
     before: dict[str, dict[str, np.ndarray]]
     after: dict[str, dict[str, np.ndarray]]
     chosen: np.ndarray
-    data: train_lpn.StyleData
+    data: StyleData
 
     def chosen_rate(self, style: str) -> float:
         return self.rates[int(self.chosen[self.styles.index(style)])]
@@ -53,7 +150,7 @@ class FinetuneResult:
     def params(self, model: Model, style: str, rate_index: int | None = None) -> dict:
         """The model with one new style's fine-tuned generator, at its chosen rate unless ``rate_index``."""
         s = self.styles.index(style)
-        return train_lpn.with_generator(model.params, self.generators, s,
+        return with_generator(model.params, self.generators, s,
                                         int(self.chosen[s]) if rate_index is None else rate_index)
 
 
@@ -64,7 +161,7 @@ def generator_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FIN
                    epochs: int = 100, chunk_steps: int = 10, progress: bool = True) -> FinetuneResult:
     """Fine-tune ``model``'s FiLM generator on every new style of ``data`` at every dropout rate,
     at most ``steps`` steps each (over at most ``epochs`` epochs), in one compiled sweep
-    (:func:`jaxstyle.mason2022.train.finetune_film_sweep`); test every pair and the model as it was on
+    (:func:`finetune_film_sweep`); test every pair and the model as it was on
     the new styles' validation and test rows, and choose a rate per style
     (:func:`jaxstyle.output.check.choose_rates` on validation alone)."""
     if model.config.modulation != "film":
@@ -73,10 +170,10 @@ def generator_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FIN
         raise PipelineError("no new styles to fine-tune on")
     if steps < 1 or not rates or any(not 0 <= r < 1 for r in rates):
         raise PipelineError(f"need steps >= 1 and dropout rates in [0, 1), got {steps} and {list(rates)}")
-    new = train_lpn.style_data(data.new, data.skeleton, base=data.base, backbone=model.config.backbone)
-    config = train_lpn.FiLMFinetuneConfig(rates=tuple(float(r) for r in rates), max_steps=steps, epochs=epochs)
+    new = styledata.style_data(data.new, data.skeleton, base=data.base, backbone=model.config.backbone)
+    config = FiLMFinetuneConfig(rates=tuple(float(r) for r in rates), max_steps=steps, epochs=epochs)
     t0 = time.perf_counter()
-    gens, per_step = train_lpn.finetune_film_sweep(model.params, model.config, new, config, chunk_steps=chunk_steps,
+    gens, per_step = finetune_film_sweep(model.params, model.config, new, config, chunk_steps=chunk_steps,
                                                    progress=progress)
     seconds = time.perf_counter() - t0
     shape = (len(new.styles), len(config.rates))
@@ -84,7 +181,7 @@ def generator_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FIN
     after = {split: {"mse": np.full(shape, np.nan), "bll": np.full(shape, np.nan)} for split in SPLITS}
     for s in range(shape[0]):
         for r in range(shape[1]):
-            tuned = train_lpn.with_generator(model.params, gens, s, r)
+            tuned = with_generator(model.params, gens, s, r)
             for split in SPLITS:
                 losses = train_lpn.evaluate(tuned, model.config, new, split, styles=[s])
                 for k in ("mse", "bll"):

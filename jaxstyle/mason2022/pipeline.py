@@ -31,6 +31,7 @@ import numpy as np
 
 from jaxstyle.data import datasets
 from jaxstyle.data.folders import PipelineError, clip_specs, portable_path
+from jaxstyle.mason2022 import styledata
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
@@ -79,7 +80,7 @@ class Model(NamedTuple):
     name: str
     config: StyleModelConfig
     params: dict
-    data: train_lpn.StyleData
+    data: styledata.StyleData
 
 
 def model_config(dataset: datasets.Dataset, name: str = MODEL, *, hidden: int = 512, generator_hidden: int = 2048,
@@ -92,7 +93,7 @@ def model_config(dataset: datasets.Dataset, name: str = MODEL, *, hidden: int = 
     paper's PFNN predicts 327 and its MANN 326 (:meth:`StyleModelConfig.paper`): with one output
     layout the test MSE of the seven models is over the same values and so comparable; the extra
     local-phase outputs of the PFNN and MANN rows are simply not fed back at runtime. The PFNN
-    backbones' expert blend is the row's global phase (:func:`jaxstyle.mason2022.train.style_data`)."""
+    backbones' expert blend is the row's global phase (:func:`jaxstyle.mason2022.styledata.style_data`)."""
     paper = StyleModelConfig.paper(name, len(dataset.styles))
     if paper.backbone == "pfnn" and len(dataset.global_phase) != len(dataset.inputs):
         raise PipelineError(f"{name}: the PFNN backbone needs a global phase per row; this dataset (or its cache) "
@@ -111,7 +112,7 @@ def train_model(data: LPNData, config: StyleModelConfig, directory: str | os.Pat
     ``train_options``: other :class:`jaxstyle.mason2022.train.LPNTrainConfig` fields, e.g. the demo's
     ``learning_rate``; ``devices`` / ``compute_dtype``: data-parallel devices and bfloat16 products,
     as :func:`jaxstyle.mason2022.train.train`)."""
-    style_data = train_lpn.style_data(data.base, data.skeleton, backbone=config.backbone)
+    style_data = styledata.style_data(data.base, data.skeleton, backbone=config.backbone)
     write_data_file(data, directory, name)
     state = train_lpn.train(style_data, train_lpn.LPNTrainConfig(model=config, epochs=epochs, **train_options),
                             directory, progress=progress, devices=devices, compute_dtype=compute_dtype)
@@ -198,7 +199,7 @@ def train_for(data: LPNData, config: StyleModelConfig, directory: str | os.PathL
     import contextlib
     import io
 
-    style_data = train_lpn.style_data(data.base, data.skeleton, backbone=config.backbone)
+    style_data = styledata.style_data(data.base, data.skeleton, backbone=config.backbone)
     cfg = train_lpn.LPNTrainConfig(model=config, epochs=budget.max_epochs, **(train_config or {}))
     write_data_file(data, directory, name)  # to reload the model with its data
     t0 = time.perf_counter()
@@ -223,7 +224,7 @@ def train_for(data: LPNData, config: StyleModelConfig, directory: str | os.PathL
                      time.perf_counter() - t0, stopped)
 
 
-def steps_per_epoch(data: train_lpn.StyleData, batch_size: int = 32) -> int:
+def steps_per_epoch(data: styledata.StyleData, batch_size: int = 32) -> int:
     """Steps of one style-balanced epoch (:func:`jaxstyle.data.batching.balanced_batches`)."""
     from jaxstyle.data.batching import balanced_batches
 

@@ -38,7 +38,7 @@ from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
 from jaxstyle.data.folders import PipelineError, located_path
-from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import pipeline, styledata
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
@@ -128,7 +128,7 @@ def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None 
         state = train_lpn.load(directory, config, styles)
     except FileNotFoundError:
         raise PipelineError(f"{directory} has no checkpoint yet: finish training it first") from None
-    style_data = train_lpn.style_data(base, data.skeleton, backbone=config.model.backbone)
+    style_data = styledata.style_data(base, data.skeleton, backbone=config.model.backbone)
     model = pipeline.Model(meta.get("name", pipeline.MODEL), config.model, state["params"], style_data)
     return Loaded(model, data, directory, int(state["epoch"]))
 
@@ -170,7 +170,7 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
         if data.new is None or not all(f.is_file() for f in files):
             raise PipelineError(f"no fine-tuned new styles in {folder}: run `jaxstyle lpn` with --finetune-steps > 0")
         chosen = json.loads(files[0].read_text())
-        new = train_lpn.style_data(data.new, data.skeleton, base=data.base, backbone=model.config.backbone)
+        new = styledata.style_data(data.new, data.skeleton, base=data.base, backbone=model.config.backbone)
         gens = _generators(model, files[1])
         for name in new_styles:
             if name not in chosen or name not in new.styles:

@@ -223,7 +223,7 @@ class LPNFiLM(nnx.Module):
 
         ``gate_BxG`` is the gating input: local phases (LPN), end-effector velocities (MANN) or the
         global phase (PFNN). With a clip, ``key`` is split into the generator's and the model's
-        keys as :func:`jaxstyle.mason2022.train.batch_loss` splits it."""
+        keys as :func:`jaxstyle.mason2022.loss.batch_loss` splits it."""
         if (clip is None) == (film_params is None):
             raise ValueError("give exactly one of clip= (a style clip) and film_params= (a FiLM vector)")
         key = _dropout_key(key, rngs, dropout_rate, "LPNFiLM")

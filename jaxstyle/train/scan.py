@@ -9,7 +9,7 @@
   :func:`run_pair` is one cell of that grid without the vmaps (the reference the grid is tested
   against, and a single fine-tuning run). The 2018 few-shot adapter sweep
   (:func:`jaxstyle.mason2018.fewshot.adapter_sweep`) and the 2022 FiLM generator sweep
-  (:func:`jaxstyle.mason2022.train.finetune_film_sweep`) are two uses of it with their own losses.
+  (:func:`jaxstyle.mason2022.finetune.finetune_film_sweep`) are two uses of it with their own losses.
 * :func:`fit`: the epoch loop of a full training run (resume from the last checkpoint, chunks of
   steps under a progress bar, a finite-loss check, a checkpoint and a ``log.csv`` row per epoch),
   used by :func:`jaxstyle.mason2018.train.train` and :func:`jaxstyle.mason2022.train.train`.
