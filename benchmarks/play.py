@@ -243,7 +243,7 @@ def learn_benchmark(run: Path, epochs: int) -> None:
         specs = [dataclasses.replace(s, style="Proud10") for s in folders.user_clip_specs([clip], True, None)]
         cells = []
         for e in (epochs, 40):
-            result, _, _ = pipeline.run_sweep(base, specs, Path(tmp) / f"e{e}", epochs=e, progress=False, write=False)
+            result = pipeline.run_sweep(base, specs, epochs=e, progress=False).result
             cells.append(f"{e} epochs: {result.validation_loss[0, int(result.chosen[0])]:.4f} at rate "
                          f"{result.chosen_rate('Proud10'):g} ({result.seconds['sweep']:.1f} s fine-tuning)")
         print(f"\nvalidation loss of the chosen rate, Proud10 (no render loop): {cells[0]}; {cells[1]}")

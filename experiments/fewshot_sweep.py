@@ -64,10 +64,11 @@ def main() -> None:
                                            folders.LOCOMOTION_GAITS)
     print(f"\nfew-shot sets of {'your clips' if user else f'{args.seconds:g} s'}; rates {args.rates}; "
           f"{args.epochs} epochs")
-    result, paths, _ = pipeline.run_sweep(
-        base, specs, args.out, rates=args.rates, epochs=args.epochs, adapter_dropout_only=args.adapter_dropout_only,
+    sweep = pipeline.run_sweep(
+        base, specs, rates=args.rates, epochs=args.epochs, adapter_dropout_only=args.adapter_dropout_only,
         matmul_dtype=args.matmul_dtype, skeleton=datasets.load_clip(specs[0], fps=60.0) if user else None,
         cache=args.cache)
+    result, paths = sweep.result, pipeline.write_sweep(sweep, args.out)
     pairs = len(result.styles) * len(result.rates)
     print(f"\nsweep: {result.seconds['sweep']:.1f} s for {pairs} pairs ({result.seconds['sweep'] / pairs:.2f} s per "
           f"pair, compile included); validation + closed-loop checks {result.seconds['selection']:.1f} s\n")

@@ -114,6 +114,7 @@ _NAMES = {
     "turning_path": "control.loop",
     "write_bvh": "motion.bvh",
     "write_report": "mason2018.selection",
+    "write_sweep": "mason2018.pipeline",
 }
 
 __all__ = sorted(_NAMES)

@@ -55,11 +55,12 @@ def sweep_and_report(run: Run, args, base, specs):
     from jaxstyle.mason2018 import pipeline
 
     t0 = time.perf_counter()
-    result, paths, shots = pipeline.run_sweep(base, specs, run.dir / "sweep", rates=args.rates,
-                                              epochs=args.sweep_epochs, adapter_dropout_only=args.adapter_dropout_only,
-                                              cache=run.dir / "cache" if run.writer else None,
-                                              progress=progress(args), write=run.writer,
-                                              replace=getattr(args, "replace", False))
+    sweep = pipeline.run_sweep(base, specs, rates=args.rates, epochs=args.sweep_epochs,
+                               adapter_dropout_only=args.adapter_dropout_only,
+                               cache=run.dir / "cache" if run.writer else None, progress=progress(args))
+    paths = (pipeline.write_sweep(sweep, run.dir / "sweep", replace=getattr(args, "replace", False)) if run.writer
+             else {})
+    result, shots = sweep.result, sweep.shots
     pairs = len(result.styles) * len(result.rates)
     run.say(f"sweep: {len(result.styles)} sets x {len(result.rates)} rates = {pairs} adapters, {args.sweep_epochs} "
             f"epochs each, in one compiled program: {result.seconds['sweep']:.1f} s; checks "

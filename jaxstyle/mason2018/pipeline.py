@@ -269,12 +269,13 @@ def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None =
 
 class SweepRun(NamedTuple):
     """What :func:`run_sweep` returns: the sweep's ``result`` (every (set, rate) pair's adapter,
-    losses, check and the chosen rate), the ``files`` written (none with ``write=False``) and the
-    few-shot sets' rows ``shots``."""
+    losses, check and the chosen rate), the few-shot sets' rows ``shots``, their clips ``specs`` and
+    the sweep's ``config`` (what :func:`write_sweep` records beside the result)."""
 
     result: selection.SweepResult
-    files: dict[str, Path]
     shots: datasets.Dataset
+    specs: tuple[ClipSpec, ...]
+    config: fewshot.SweepConfig
 
 
 class LoadedSweep(NamedTuple):
@@ -285,22 +286,18 @@ class LoadedSweep(NamedTuple):
     shots: datasets.Dataset
 
 
-def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLike, *,
-              rates: Sequence[float] = DEFAULT_RATES, epochs: int = 100, adapter_dropout_only: bool = False,
-              matmul_dtype: str = "float32", skeleton: Motion | None = None, cache: str | os.PathLike | None = None,
-              progress: bool = True, shard: bool | None = None, write: bool = True, replace: bool = False
-              ) -> SweepRun:
+def run_sweep(base: Base, specs: Sequence[ClipSpec], *, rates: Sequence[float] = DEFAULT_RATES, epochs: int = 100,
+              adapter_dropout_only: bool = False, matmul_dtype: str = "float32", skeleton: Motion | None = None,
+              cache: str | os.PathLike | None = None, progress: bool = True, shard: bool | None = None) -> SweepRun:
     """Fine-tune a new adapter per (few-shot set of ``specs``, rate) on the frozen base in one compiled
-    sweep, validate and check them closed-loop (on ``skeleton``, default the base's), choose a rate
-    per set, and write the report to ``directory`` with ``sweep.json`` (the sets' clips). Returns the
-    result, the report's paths and the few-shot dataset. ``adapter_dropout_only`` and
+    sweep, validate and check them closed-loop (on ``skeleton``, default the base's) and choose a rate
+    per set. Returns the result, the few-shot dataset, the specs and the config; writes nothing
+    (:func:`write_sweep` writes the report). ``cache``: where :func:`build` caches the
+    few-shot rows (``None``: no cache). ``adapter_dropout_only`` and
     ``matmul_dtype``: see :class:`jaxstyle.mason2018.fewshot.SweepConfig`.
 
     ``shard``: spread the sets over all devices (default: when ``jax.distributed`` runs several
-    processes; every process then calls this alike and gets the whole result). ``write=False``
-    writes nothing (the report's paths come back empty): the other processes of a multi-process run.
-    An earlier report in ``directory`` is merged (its other sets kept, see
-    :func:`jaxstyle.mason2018.selection.write_report`) unless ``replace``."""
+    processes; every process then calls this alike and gets the whole result)."""
     if shard is None:
         shard = jax.process_count() > 1
     if not specs:
@@ -319,8 +316,15 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
                                  adapter_dropout_only=adapter_dropout_only, matmul_dtype=matmul_dtype)
     result = selection.fewshot_sweep(base.params, base.normalisers, shots, skeleton or base.skeleton, config,
                                      progress=progress, shard=shard)
-    if not write:
-        return SweepRun(result, {}, shots)
+    return SweepRun(result, shots, tuple(specs), config)
+
+
+def write_sweep(sweep: SweepRun, directory: str | os.PathLike, *, replace: bool = False) -> dict[str, Path]:
+    """Write a sweep's report to ``directory`` (:func:`jaxstyle.mason2018.selection.write_report`:
+    tables, heat map, ``chosen_rates.json``, one adapter folder per set) with ``sweep.json`` (the
+    sets' clips, paths relative to the folder). An earlier report there is merged (its other sets
+    kept) unless ``replace``. Returns the paths written."""
+    result, config = sweep.result, sweep.config
     path = Path(directory) / "sweep.json"
     kept = []
     if not replace and path.is_file() and (Path(directory) / "chosen_rates.json").is_file():
@@ -328,13 +332,12 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], directory: str | os.PathLik
         kept = [d for d in earlier.get("specs", []) if d.get("style") not in result.styles]
     paths = selection.write_report(result, directory, config, replace=replace)
     kept_styles = list(dict.fromkeys(d.get("style") for d in kept))
-    meta = {"specs": kept + [_portable_spec(s, directory) for s in specs], "rates": list(config.rates),
-            "epochs": epochs,
-            "styles": kept_styles + list(result.styles), "seconds": result.seconds}
+    meta = {"specs": kept + [_portable_spec(s, directory) for s in sweep.specs], "rates": list(config.rates),
+            "epochs": config.epochs, "styles": kept_styles + list(result.styles), "seconds": result.seconds}
     path.with_name("sweep.json.tmp").write_text(json_text(meta))
     os.replace(path.with_name("sweep.json.tmp"), path)
     paths["sweep"] = path
-    return SweepRun(result, paths, shots)
+    return paths
 
 
 def _check_joint_order(specs: Sequence[ClipSpec], base: Base) -> None:

@@ -163,8 +163,9 @@ class Learner:
             specs = folders.user_clip_specs([path], self.mirror, self.clip_range)
             specs = [dataclasses.replace(s, style=name) for s in specs]
             self._set_stage(STAGES[1])
-            result, _, _ = pipeline.run_sweep(self.model.base, specs, learned_root(self.model.run_dir) / name,
-                                              rates=self.rates, epochs=self.epochs, progress=True)
+            sweep = pipeline.run_sweep(self.model.base, specs, rates=self.rates, epochs=self.epochs, progress=True)
+            pipeline.write_sweep(sweep, learned_root(self.model.run_dir) / name)
+            result = sweep.result
             passed = bool(result.chosen_passed[result.styles.index(name)])
             if not passed and not self.allow_failed:
                 self._fail(f"{name} failed the closed-loop check at every rate ({'; '.join(result.failed(name))}): "
