@@ -45,6 +45,7 @@ def test_layers_contract_is_kept(tree_copy):
     ("output/quality.py", "from jaxstyle.output import synthesis"),
     ("output/quality.py", "from jaxstyle.output import report"),
     ("play/models.py", "from jaxstyle.play import session"),
+    ("play/learn_panel.py", "from jaxstyle.play import server"),
     ("control/controller.py", "from jaxstyle.control import model"),
 ])
 def test_an_upward_import_breaks_the_contract(tree_copy, tmp_path, module, upward):

@@ -40,7 +40,6 @@ import datetime
 import math
 import threading
 import time
-import uuid
 from pathlib import Path
 from typing import Callable
 
@@ -48,13 +47,12 @@ import numpy as np
 
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.play import guard, learn
+from jaxstyle.play.learn_panel import LearnPanel
 from jaxstyle.play.models import (
     PFNN,
     PLAY_DIR,
     AnyPlayModel,
     PlayError,
-    PlayModel,
-    Style,
     available_models,
     load_any,
 )
@@ -67,10 +65,6 @@ from jaxstyle.play.session import (
 FPS = 60.0
 NO_BLEND = "(none)"
 NO_MODEL = "(none)"
-LEARN_2018_ONLY = ("learning a style live is the 2018 few-shot sweep (Mason et al. 2018): choose the 2018 PFNN "
-                   "under Model to learn one; a 2022 model learns new styles with `jaxstyle lpn --clip FILE`")
-NO_2018_MODEL = ("learning a style live is the 2018 few-shot sweep (Mason et al. 2018), and this run folder has no "
-                 "2018 model (RUN/base); a 2022 model learns new styles with `jaxstyle lpn --clip FILE`")
 STEER_BUTTONS = {"Left": "A", "Forward": "W", "Back": "S", "Right": "D"}
 MAX_UPLOAD_BYTES = 8_000_000  # an upload's default cap (a 10 s 100STYLE clip is about 0.1 MB)
 
@@ -80,7 +74,7 @@ def _one_line(e: BaseException) -> str:
     return " ".join(line.strip() for line in str(message).splitlines() if line.strip()) or type(e).__name__
 
 
-class PlayServer(SceneView):
+class PlayServer(SceneView, LearnPanel):
     """The live page on ``host:port`` for the run folder ``run_dir``.
 
     ``start()`` serves the page, loads the run (a failure shows in the page) and starts the render
@@ -103,23 +97,15 @@ class PlayServer(SceneView):
         self.run_dir = Path(run_dir)
         self.allow_failed = bool(allow_failed)  # offer and keep styles that failed the closed-loop check
         self.token = token
-        self.data_dirs = tuple(Path(d) for d in data_dirs)
         self.runs_root = Path(runs_root) if runs_root is not None else self.run_dir.resolve().parent
-        self.max_upload_bytes = int(max_upload_bytes)
-        self._reading = threading.Lock()  # held while a clip the page named is read and checked
-        self._pending_upload: Path | None = None
-        self._reader = learn.ClipReader()
+        self._init_learning(learn_epochs, learn_rates, data_dirs, max_upload_bytes)
         self.model_key = model
         self._models: dict[tuple[str, str], AnyPlayModel] = {}  # loaded once per (run folder, model)
-        self._learners: dict[int, tuple[PlayModel, learn.Learner]] = {}  # per 2018 model (kept alive with it)
         self._model_keys: dict[str, str] = {}  # the Model choice's labels -> keys
         self._refreshing_models = False
         self.host, self.port, self.verbose, self.log = host, int(port), verbose, log
-        self.learn_epochs = int(learn_epochs)
-        self.learn_rates = learn_rates
         self.record_seconds = float(record_seconds)
         self.session: Session | None = None
-        self.learner: learn.Learner | None = None
         self.message = ""
         self.step_ms = self.frame_ms = float("nan")
         self.last_recording: list[Path] = []
@@ -225,22 +211,6 @@ class PlayServer(SceneView):
             self._note(line)
             self.log(line)
         return True
-
-    def _learner_for(self, run_dir: Path) -> learn.Learner | None:
-        """The learner of the run's 2018 model (loaded when a 2022 model plays but the run has a
-        2018 one too, so a style learned meanwhile has a model to join); ``None`` without one."""
-        model = self._models.get((str(run_dir), PFNN))
-        if model is None and self.session is not None and isinstance(self.session.model, PlayModel) \
-                and self.session.model.run_dir == run_dir:
-            model = self.session.model
-        if model is None:
-            return None
-        if id(model) not in self._learners:
-            self._learners[id(model)] = (model, learn.Learner(
-                model, lambda style, m=model: self._learned(style, m), on_fail=self._learn_failed,
-                epochs=self.learn_epochs, allow_failed=self.allow_failed,
-                **({"rates": self.learn_rates} if self.learn_rates else {})))
-        return self._learners[id(model)][1]
 
     def load_model_key(self, key: str) -> bool:
         """Switch to the run folder's model ``key`` (the page's Model choice)."""
@@ -403,24 +373,6 @@ class PlayServer(SceneView):
         finally:
             self._refreshing_models = False
 
-    def _refresh_learn_controls(self) -> None:
-        """Learning a style live needs the 2018 model: disabled, and saying so, while a 2022 one plays."""
-        off = not self.session.model.learnable
-        for k in ("upload", "path", "learn"):
-            self._gui[k].disabled = off
-        if off:
-            self._gui["learn_note"].content = f"**{self.session.model.title}:** {self._learn_refusal()}."
-        elif self.learner is None or self.learner.state == "idle":
-            self._gui["learn_note"].content = ""
-
-    def _learn_refusal(self) -> str:
-        return LEARN_2018_ONLY if PFNN in self._model_keys.values() else NO_2018_MODEL
-
-    def _check_learnable(self) -> None:
-        """Refuse to learn (before an upload is even written) while a model that cannot plays."""
-        if not self.session.model.learnable or self.learner is None:
-            raise PlayError(f"{self.session.model.title} plays: {self._learn_refusal()}")
-
     def _guarded_load(self) -> None:
         """The page's "Run folder": a folder under ``runs_root`` only, loaded in a thread."""
         try:
@@ -480,105 +432,6 @@ class PlayServer(SceneView):
     def set_style(self, name: str) -> None:
         """Switch the first character, as the dropdown does (tests and scripts)."""
         self._gui["style"].value = name
-
-    # --- learning -----------------------------------------------------------------------------
-    def read_roots(self) -> tuple[Path, ...]:
-        """The folders under which the page may name a BVH file: the run folder (its uploads
-        included) and the server's ``data_dirs``."""
-        return (self.run_dir, *self.data_dirs)
-
-    def _on_upload(self, uploaded) -> None:
-        """An upload: refused above the size cap (nothing written); otherwise written under a
-        fresh folder (``RUN/play/uploads/<random>/<name>``, so it never replaces another upload,
-        such as a learned style's source) and read and learned like a named file; removed again
-        when refused or when learning it fails."""
-        if not uploaded.name:
-            return
-        self._check_learnable()
-        name = Path(uploaded.name).name
-        size = len(uploaded.content)
-        if size > self.max_upload_bytes:
-            raise PlayError(f"{name}: the upload is {size / 1e6:.1f} MB, more than the {self.max_upload_bytes / 1e6:g} "
-                            "MB allowed (jaxstyle play --max-upload-mb raises it)")
-        folder = self.run_dir / PLAY_DIR / "uploads" / uuid.uuid4().hex[:12]
-        folder.mkdir(parents=True)
-        path = folder / (learn.style_name(name) + ".bvh")
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_bytes(uploaded.content)
-        tmp.replace(path)
-        self._read_then_learn(path, upload=True)
-
-    def learn(self, path: str) -> threading.Thread:
-        """Learn the BVH file at ``path`` (it must lie under :meth:`read_roots`): read and checked
-        in a worker thread (a bad file's refusal then shows in the page), then learned in the
-        background (progress in the page). Returns the worker thread."""
-        self._check_learnable()
-        resolved = guard.confine(path, self.read_roots(), "BVH file")
-        return self._read_then_learn(resolved)
-
-    def _read_then_learn(self, path: Path, upload: bool = False) -> threading.Thread:
-        if self.learner.busy:
-            self._discard_upload(path if upload else None)
-            raise PlayError("a style is being learned already; wait until it is done")
-        if not self._reading.acquire(blocking=False):
-            self._discard_upload(path if upload else None)
-            raise PlayError("a clip is being read already; wait until it is checked")
-        model, learner = self.session.model, self.learner
-        self._gui["learn_note"].content = f"{path.name}: reading ..."
-
-        def work() -> None:  # errors are shown by _guarded
-            try:
-                learn.check_clip(path, model, self._reader.names)  # in another process, off the lock
-                with self.lock:
-                    name = learner.start(path)
-                    self._pending_upload = path if upload else None
-                self._gui["progress"].value = 0.0
-                self._gui["learn_note"].content = f"{name}: starting ..."
-            except BaseException:
-                self._discard_upload(path if upload else None)
-                self._gui["learn_note"].content = ""
-                raise
-            finally:
-                self._reading.release()
-
-        thread = threading.Thread(target=self._guarded(work, reads_files=True), name="jaxstyle-play-read",
-                                  daemon=True)
-        thread.start()
-        return thread
-
-    def _discard_upload(self, path: Path | None) -> None:
-        """Remove a refused upload (its fresh folder too)."""
-        if path is None:
-            return
-        path.unlink(missing_ok=True)
-        try:
-            path.parent.rmdir()
-        except OSError:
-            pass
-
-    def _learned(self, style: Style, model: PlayModel) -> None:
-        """A style learned on the 2018 ``model`` joins its styles (and the dropdown if it plays)."""
-        with self.lock:
-            if self.session is not None and self.session.model is model:
-                self.session.add_style(style)
-                self._refresh_style_options()
-                note = ""
-            else:
-                model.styles[style.name] = style
-                note = f" (for the {model.title}: choose it under Model to play it)"
-            self._pending_upload = None  # kept: the learned style's source
-        message = self._learners[id(model)][1].status()[2] + note
-        self._gui["progress"].value = 100.0
-        self._gui["learn_note"].content = message
-        self.log(message)
-
-    def _learn_failed(self, message: str) -> None:
-        with self.lock:
-            pending, self._pending_upload = self._pending_upload, None
-        self._discard_upload(pending)
-        self._gui["progress"].value = 0.0
-        self._gui["learn_note"].content = message
-        self.show_error(message)
 
     # --- recording ----------------------------------------------------------------------------
     def record(self, seconds: float) -> None:
