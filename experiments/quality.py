@@ -56,7 +56,7 @@ import jax
 
 import jaxstyle as js
 from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, PipelineError, available_styles
-from jaxstyle.mason2018 import pipeline, selection
+from jaxstyle.mason2018 import pipeline, sweep_files
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import diagnose, preview, quality, report
 
@@ -138,7 +138,7 @@ def main() -> None:
     subjects = [quality.Subject(f"{s} (base)", "base", jax.tree.map(lambda v, i=i: v[i], base.adapters),
                                 base.dataset, s) for i, s in enumerate(base.dataset.styles)]
     for name in chosen:
-        adapter = selection.load_adapter(sweep_dir / "adapters" / name, base.model)
+        adapter = sweep_files.load_adapter(sweep_dir / "adapters" / name, base.model)
         subjects.append(quality.Subject(f"{name} (few-shot, rate {chosen[name]['rate']:g})", "few-shot", adapter,
                                         shots, name))
     t1 = time.perf_counter()

@@ -84,7 +84,7 @@ _NAMES = {
     "global_transforms": "motion.kinematics",
     "grid_sweep": "train.scan",
     "joint_contacts": "labels.contacts",
-    "load_adapter": "mason2018.selection",
+    "load_adapter": "mason2018.sweep_files",
     "local_phases": "labels.local_phase",
     "mirror": "motion.transform",
     "mirror_pairs": "motion.skeleton",
@@ -113,7 +113,7 @@ _NAMES = {
     "train_base": "mason2018.pipeline",
     "turning_path": "control.loop",
     "write_bvh": "motion.bvh",
-    "write_report": "mason2018.selection",
+    "write_report": "mason2018.sweep_files",
     "write_sweep": "mason2018.pipeline",
 }
 

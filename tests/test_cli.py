@@ -359,7 +359,7 @@ def test_a_set_that_failed_every_check_is_refused_unless_allowed(demo_run, tmp_p
     refuses it with one line naming the set and the figure, and uses it, marked, with --allow-failed."""
     import shutil
 
-    from jaxstyle.mason2018 import fewshot, pipeline, selection
+    from jaxstyle.mason2018 import fewshot, pipeline, selection, sweep_files
 
     run = tmp_path / "run"
     shutil.copytree(demo_run, run)
@@ -372,7 +372,7 @@ def test_a_set_that_failed_every_check_is_refused_unless_allowed(demo_run, tmp_p
     assert not result.chosen_passed.any()
     (name,) = [s for s in result.styles if s.startswith("Limping")][:1]
     assert result.failed(name) and result.failed(name)[0].startswith("bone error ")
-    selection.write_report(result, run / "sweep", config)
+    sweep_files.write_report(result, run / "sweep", config)
     saved = json.loads((run / "sweep" / "chosen_rates.json").read_text())[name]
     assert saved["passed_check"] is False and saved["failed"] == result.failed(name)
     capsys.readouterr()

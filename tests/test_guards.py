@@ -222,7 +222,7 @@ def test_nan_parameters_are_never_saved(tmp_path):
 # --- JSON ----------------------------------------------------------------------------------------
 
 def test_chosen_rates_json_is_strict_with_null_for_a_missing_loss(tmp_path):
-    from jaxstyle.mason2018 import fewshot, selection
+    from jaxstyle.mason2018 import fewshot, selection, sweep_files
 
     S, R = 2, 2
     result = selection.SweepResult(
@@ -231,7 +231,7 @@ def test_chosen_rates_json_is_strict_with_null_for_a_missing_loss(tmp_path):
         rollout={k: np.ones((S, R)) for k in selection.ROLLOUT_FIELDS}, reference={},
         chosen=np.array([0, 1]), chosen_passed=np.array([False, True]), train_rows=(3, 4), validation_rows=(0, 2),
         seconds={"sweep": float("nan")})
-    paths = selection.write_report(result, tmp_path, fewshot.SweepConfig())
+    paths = sweep_files.write_report(result, tmp_path, fewshot.SweepConfig())
     chosen = _strict_json(paths["chosen"].read_text())
     assert chosen["a"]["validation_loss"] is None and chosen["b"]["validation_loss"] == pytest.approx(0.1)
 

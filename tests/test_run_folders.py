@@ -18,7 +18,7 @@ from jaxstyle.cli.common import CLIError, Run, lock_run
 from jaxstyle.cli.main import main
 from jaxstyle.data import folders
 from jaxstyle.data.folders import PipelineError
-from jaxstyle.mason2018 import fewshot, selection
+from jaxstyle.mason2018 import fewshot, selection, sweep_files
 from jaxstyle.nn import pfnn
 
 MODEL = pfnn.PFNNConfig(input_size=6, hidden_size=8, output_size=5, rank=2)
@@ -40,21 +40,21 @@ def fake_result(styles, rates=(0.1, 0.5), seed=0) -> selection.SweepResult:
 
 def test_a_sweep_report_adds_to_the_earlier_sets_and_replace_starts_over(tmp_path):
     config = fewshot.SweepConfig(model=MODEL, epochs=1, rates=(0.1, 0.5))
-    selection.write_report(fake_result(["Angry", "Proud"]), tmp_path, config)
+    sweep_files.write_report(fake_result(["Angry", "Proud"]), tmp_path, config)
     again = fake_result(["Proud", "Zombie"], seed=1)
-    paths = selection.write_report(again, tmp_path, config)
-    chosen = selection.read_chosen(paths["chosen"])
+    paths = sweep_files.write_report(again, tmp_path, config)
+    chosen = sweep_files.read_chosen(paths["chosen"])
     assert set(chosen) == {"Angry", "Proud", "Zombie"}
     assert chosen["Proud"]["rate"] == again.chosen_rate("Proud")  # swept again: updated
     with open(paths["csv"], newline="") as f:
         table = list(csv.DictReader(f))
     assert [r["style"] for r in table] == ["Angry"] * 2 + ["Proud"] * 2 + ["Zombie"] * 2
     assert sorted(p.name for p in paths["adapters"].iterdir()) == ["Angry", "Proud", "Zombie"]
-    loaded = selection.load_adapter(paths["adapters"] / "Proud", MODEL)
+    loaded = sweep_files.load_adapter(paths["adapters"] / "Proud", MODEL)
     for p, q in zip(jax.tree.leaves(loaded), jax.tree.leaves(again.adapter("Proud")), strict=True):
         np.testing.assert_array_equal(np.asarray(p), np.asarray(q))
-    paths = selection.write_report(fake_result(["Zombie"], seed=2), tmp_path, config, replace=True)
-    assert set(selection.read_chosen(paths["chosen"])) == {"Zombie"}
+    paths = sweep_files.write_report(fake_result(["Zombie"], seed=2), tmp_path, config, replace=True)
+    assert set(sweep_files.read_chosen(paths["chosen"])) == {"Zombie"}
     assert [p.name for p in paths["adapters"].iterdir()] == ["Zombie"]
 
 
@@ -72,10 +72,10 @@ def test_hand_edited_chosen_rates_are_refused_with_the_file_and_key(tmp_path, te
     path = tmp_path / "chosen_rates.json"
     path.write_text(text)
     with pytest.raises(PipelineError, match=message):
-        selection.read_chosen(path)
+        sweep_files.read_chosen(path)
     # and a sweep report into that folder refuses it too instead of dropping the earlier sets
     with pytest.raises(PipelineError, match=message):
-        selection.write_report(fake_result(["Proud"]), tmp_path, fewshot.SweepConfig(model=MODEL, epochs=1,
+        sweep_files.write_report(fake_result(["Proud"]), tmp_path, fewshot.SweepConfig(model=MODEL, epochs=1,
                                                                                         rates=(0.1, 0.5)))
     assert path.read_text() == text
 
@@ -129,14 +129,14 @@ def test_an_adapter_of_a_base_of_other_sizes_is_named_as_such_not_as_damage(tmp_
     from jaxstyle.train.checkpoint import CheckpointMismatchError
 
     config = fewshot.SweepConfig(model=MODEL, epochs=1, rates=(0.1, 0.5))
-    paths = selection.write_report(fake_result(["Angry"]), tmp_path, config)
+    paths = sweep_files.write_report(fake_result(["Angry"]), tmp_path, config)
     other = pfnn.PFNNConfig(input_size=6, hidden_size=8, output_size=5, rank=4)
     # rank 2 saved, rank 4 asked for: which array orbax reports first varies
     with pytest.raises(CheckpointMismatchError, match=r"of a model of other sizes: an array is \((.*\b)?2(\b.*)?\) "
                                                       r"there and \((.*\b)?4(\b.*)?\) in this model"):
-        selection.load_adapter(paths["adapters"] / "Angry", other)
+        sweep_files.load_adapter(paths["adapters"] / "Angry", other)
     assert not (paths["adapters"] / "Angry" / "damaged").exists()
-    assert selection.load_adapter(paths["adapters"] / "Angry", MODEL) is not None  # its own model still reads it
+    assert sweep_files.load_adapter(paths["adapters"] / "Angry", MODEL) is not None  # its own model still reads it
 
 
 def test_paths_inside_a_run_folder_are_recorded_relative_to_it(tmp_path, monkeypatch):

@@ -12,7 +12,7 @@ import pytest
 
 from jaxstyle.data import datasets
 from jaxstyle.data.datasets import ClipSpec
-from jaxstyle.mason2018 import fewshot, selection
+from jaxstyle.mason2018 import fewshot, selection, sweep_files
 from jaxstyle.nn import pfnn
 from jaxstyle.output import check as check_lib
 from jaxstyle.train import scan
@@ -118,7 +118,7 @@ def test_fewshot_sweep_end_to_end_writes_a_report(fewshot_set, tmp_path):
     want = jnp.mean((pfnn.pfnn_apply(params, data.x[rows], data.phase[rows], adapter=a) - data.y[rows]) ** 2)
     np.testing.assert_allclose(result.validation_loss[1, 1], float(want), rtol=1e-5)
 
-    paths = selection.write_report(result, tmp_path, config)
+    paths = sweep_files.write_report(result, tmp_path, config)
     with open(paths["csv"], newline="") as f:
         table = list(csv.DictReader(f))
     assert len(table) == 4 and sum(int(r["chosen"]) for r in table) == 2
@@ -126,7 +126,7 @@ def test_fewshot_sweep_end_to_end_writes_a_report(fewshot_set, tmp_path):
     assert set(chosen) == {"Elated", "Rushed"}
     assert chosen["Rushed"]["rate"] == result.chosen_rate("Rushed")
     assert paths["heatmap"].stat().st_size > 1000
-    loaded = selection.load_adapter(paths["adapters"] / "Rushed", model)
+    loaded = sweep_files.load_adapter(paths["adapters"] / "Rushed", model)
     for p, q in zip(jax.tree.leaves(loaded), jax.tree.leaves(result.adapter("Rushed")), strict=True):
         np.testing.assert_array_equal(np.asarray(p), np.asarray(q))
 

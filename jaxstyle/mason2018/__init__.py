@@ -3,4 +3,4 @@ a style folder."""
 
 from jaxstyle._lazy import lazy_module
 
-__getattr__, __dir__ = lazy_module(__name__, ["fewshot", "selection", "pipeline", "train"])
+__getattr__, __dir__ = lazy_module(__name__, ["fewshot", "selection", "sweep_files", "pipeline", "train"])

@@ -41,7 +41,7 @@ from jaxstyle.data.datasets import ClipSpec
 from jaxstyle.data.folders import PAPER_BASE, PipelineError, clip_specs, located_path, portable_path
 from jaxstyle.data.pfnn_features import PFNNLayout, valid_frames
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2018 import fewshot, selection
+from jaxstyle.mason2018 import fewshot, selection, sweep_files
 from jaxstyle.mason2018.train import (
     TrainConfig,
     data_from_dataset,
@@ -320,7 +320,7 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], *, rates: Sequence[float] =
 
 
 def write_sweep(sweep: SweepRun, directory: str | os.PathLike, *, replace: bool = False) -> dict[str, Path]:
-    """Write a sweep's report to ``directory`` (:func:`jaxstyle.mason2018.selection.write_report`:
+    """Write a sweep's report to ``directory`` (:func:`jaxstyle.mason2018.sweep_files.write_report`:
     tables, heat map, ``chosen_rates.json``, one adapter folder per set) with ``sweep.json`` (the
     sets' clips, paths relative to the folder). An earlier report there is merged (its other sets
     kept) unless ``replace``. Returns the paths written."""
@@ -330,7 +330,7 @@ def write_sweep(sweep: SweepRun, directory: str | os.PathLike, *, replace: bool 
     if not replace and path.is_file() and (Path(directory) / "chosen_rates.json").is_file():
         earlier = _read_sweep_json(path)
         kept = [d for d in earlier.get("specs", []) if d.get("style") not in result.styles]
-    paths = selection.write_report(result, directory, config, replace=replace)
+    paths = sweep_files.write_report(result, directory, config, replace=replace)
     kept_styles = list(dict.fromkeys(d.get("style") for d in kept))
     meta = {"specs": kept + [_portable_spec(s, directory) for s in sweep.specs], "rates": list(config.rates),
             "epochs": config.epochs, "styles": kept_styles + list(result.styles), "seconds": result.seconds}
@@ -396,7 +396,7 @@ def load_sweep(directory: str | os.PathLike, base: Base, *, cache: str | os.Path
         if not (directory / name).is_file():
             raise PipelineError(f"no few-shot sweep in {directory} (no {name}): run `jaxstyle sweep --run RUN` first")
     meta = _read_sweep_json(directory / "sweep.json")
-    chosen = selection.read_chosen(directory / "chosen_rates.json")
+    chosen = sweep_files.read_chosen(directory / "chosen_rates.json")
     try:
         specs = [ClipSpec.from_json({**s, "path": located_path(s["path"], directory)}) for s in meta["specs"]]
     except (KeyError, TypeError, ValueError) as e:
@@ -447,7 +447,7 @@ def characters(base: Base, sweep_dir: str | os.PathLike | None, shots: datasets.
         failed = failed_check(chosen[name], name)
         if failed and not allow_failed:
             raise PipelineError(refusal("few-shot set", failed))
-        adapter = selection.load_adapter(Path(sweep_dir) / "adapters" / name, base.model)
+        adapter = sweep_files.load_adapter(Path(sweep_dir) / "adapters" / name, base.model)
         mark = FAILED_MARK if failed else ""
         out.append(Character(f"{name} (few-shot, rate {chosen[name]['rate']:g}){mark}", name, adapter, shots, name))
     if blend:

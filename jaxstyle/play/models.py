@@ -38,7 +38,7 @@ from jaxstyle.data import folders
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2018 import pipeline, selection
+from jaxstyle.mason2018 import pipeline, sweep_files
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn
 from jaxstyle.output.check import FAILED_MARK, failed_check
@@ -207,7 +207,7 @@ def _sweep_styles(directory: Path, base: pipeline.Base, kind: str, allow_failed:
     chosen_path = directory / "chosen_rates.json"
     if not chosen_path.is_file():
         return [], []
-    chosen = selection.read_chosen(chosen_path)
+    chosen = sweep_files.read_chosen(chosen_path)
     styles, refused = [], []
     for name, info in chosen.items():
         if not (directory / "adapters" / name).is_dir():
@@ -216,7 +216,7 @@ def _sweep_styles(directory: Path, base: pipeline.Base, kind: str, allow_failed:
         if failed and not allow_failed:
             refused.append(f"{failed}: not offered (jaxstyle play --allow-failed offers it)")
             continue
-        adapter = selection.load_adapter(directory / "adapters" / name, base.model)
+        adapter = sweep_files.load_adapter(directory / "adapters" / name, base.model)
         styles.append(Style(name, kind + (FAILED_MARK if failed else ""), float(info["rate"]), adapter))
     return styles, refused
 
