@@ -38,7 +38,6 @@ Writes ``--run/closed_loop.md`` (the per-row table and the summary per recipe an
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import time
 from pathlib import Path
@@ -49,9 +48,10 @@ import numpy as np
 from jaxstyle.data.folders import PAPER_BASE, available_styles
 from jaxstyle.data.locate import mocap_dir
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2022 import pipeline
+from jaxstyle.mason2022 import pipeline, report
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import drive, quality
+from jaxstyle.output import report as quality_report
 from jaxstyle.train.defaults import PHASE_FLOOR
 
 RECIPES = {"paper": {}, "noise": {"input_noise": 1.0}, "rollout": {"rollout_steps": 4}}
@@ -70,7 +70,15 @@ def pose_motion_m(positions_TxJx3: np.ndarray, yaw_T: np.ndarray, origin_Tx2: np
     return float(local.std(axis=0).mean() / upm)
 
 
+def runtime_name(floor: float) -> str:
+    return "paper (no floor)" if floor == 0 else f"phase floor {floor:g}"
+
+
 def measure(loaded: synthesis2022.Loaded, styles, recipe: str, new_styles=()) -> list[dict]:
+    """The quality benchmark's rows (:func:`jaxstyle.output.quality.measure_rollouts`, the captures'
+    included) of every style along :data:`PATHS`, each with its ``recipe``, ``phase_floor`` and
+    ``pose_motion_m``, and named ``model`` = ``"<recipe>, <runtime>"`` (one group of
+    :func:`jaxstyle.mason2022.report.closed_loop_figures`)."""
     skeleton = loaded.data.skeleton
     upm = estimate_units_per_meter(skeleton)
     chars = synthesis2022.characters(loaded, styles=styles, new_styles=new_styles, allow_failed=True)
@@ -80,52 +88,44 @@ def measure(loaded: synthesis2022.Loaded, styles, recipe: str, new_styles=()) ->
     rows = quality.measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton,
                                     driven.speeds).rows
     out = jax.tree.map(np.asarray, driven.rollouts)
-    captures = {r["style"]: r for r in rows if r["path"] == "capture"}
-    table = []
     for k, (i, p) in enumerate(driven.pairs):
         r = next(r for r in rows if r["style"] == chars[i].title and r["path"] == p)
-        cap = captures[chars[i].title]
-        motion = pose_motion_m(out.positions[k][:, :skeleton.num_joints], out.yaw[k], out.origin[k], upm,
-                               int(skeleton.fps))
-        table.append({"recipe": recipe, "phase_floor": loaded.phase_floor, "style": chars[i].title, "path": p,
-                      "phase_rate_ratio": r["phase_rate_ratio"], "phases_stalled": r["phases_stalled"],
-                      "pose_motion_m": motion, "steps_per_s": r["steps_per_s"],
-                      "capture_steps_per_s": cap["steps_per_s"],
-                      "skating_m_s": r["foot_skating_m_s"], "capture_skating_m_s": cap["foot_skating_m_s"],
-                      "contact_fraction": r["contact_fraction"], "capture_contact_fraction": cap["contact_fraction"],
-                      "style_distance": r["style_distance"]})
-    return table
+        r["pose_motion_m"] = pose_motion_m(out.positions[k][:, :skeleton.num_joints], out.yaw[k], out.origin[k],
+                                           upm, int(skeleton.fps))
+    group = {"model": f"{recipe}, {runtime_name(loaded.phase_floor)}", "recipe": recipe,
+             "phase_floor": loaded.phase_floor}
+    return [{**r, **group} for r in rows]
 
 
 def summary(rows: list[dict]) -> list[str]:
+    """One line per (recipe, runtime) from :func:`jaxstyle.mason2022.report.closed_loop_figures`."""
     lines = ["| recipe | runtime | rows stalled | median phase rate / capture | rows stepping within 25% of "
              "capture | median steps/s / capture | median raw skating / capture | median style distance m |",
              "|---|---|---|---|---|---|---|---|"]
-    for recipe in dict.fromkeys(r["recipe"] for r in rows):
-        for floor in dict.fromkeys(r["phase_floor"] for r in rows):
-            mine = [r for r in rows if r["recipe"] == recipe and r["phase_floor"] == floor]
-            steps = np.array([r["steps_per_s"] / r["capture_steps_per_s"] for r in mine])
-            skate = np.array([r["skating_m_s"] / r["capture_skating_m_s"] for r in mine])
-            within = int(np.sum(np.abs(steps - 1) <= 0.25))
-            runtime = "paper (no floor)" if floor == 0 else f"phase floor {floor:g}"
-            lines.append(f"| {recipe} | {runtime} | {sum(bool(r['phases_stalled']) for r in mine)} / {len(mine)} | "
-                         f"{np.median([r['phase_rate_ratio'] for r in mine]):.2f} | {within} / {len(mine)} | "
-                         f"{np.median(steps):.2f} | {np.median(skate):.1f} | "
-                         f"{np.nanmedian([r['style_distance'] for r in mine]):.2f} |")
+    groups = {r["model"]: r for r in rows}
+    for model, f in report.closed_loop_figures(rows).items():
+        n = f["rows"] - f["diverged"]
+        lines.append(f"| {groups[model]['recipe']} | {runtime_name(groups[model]['phase_floor'])} | "
+                     f"{f['stalled']} / {n} | {f['phase_rate_ratio']:.2f} | {f['stepping']} / {n} | "
+                     f"{f['steps_ratio']:.2f} | {f['skating_ratio']:.1f} | {f['style_distance']:.2f} |")
     return lines
 
 
 def row_table(rows: list[dict]) -> list[str]:
     lines = ["| recipe | runtime | style | path | phase rate / capture | pose motion m | steps/s (capture) | "
              "raw skating m/s (capture) | feet on floor (capture) | style distance m |", "|---|" * 1 + "---|" * 9]
+    captures = {(r["model"], r["style"]): r for r in rows if r["path"] == "capture"}
     for r in rows:
+        if r["path"] == "capture":
+            continue
+        cap = captures[(r["model"], r["style"])]
         runtime = "paper" if r["phase_floor"] == 0 else f"floor {r['phase_floor']:g}"
         stalled = " stalled" if r["phases_stalled"] else ""
         lines.append(f"| {r['recipe']} | {runtime} | {r['style']} | {r['path']} | "
                      f"{r['phase_rate_ratio']:.2f}{stalled} | "
-                     f"{r['pose_motion_m']:.3f} | {r['steps_per_s']:.2f} ({r['capture_steps_per_s']:.2f}) | "
-                     f"{r['skating_m_s']:.2f} ({r['capture_skating_m_s']:.2f}) | {r['contact_fraction']:.2f} "
-                     f"({r['capture_contact_fraction']:.2f}) | {r['style_distance']:.2f} |")
+                     f"{r['pose_motion_m']:.3f} | {r['steps_per_s']:.2f} ({cap['steps_per_s']:.2f}) | "
+                     f"{r['foot_skating_m_s']:.2f} ({cap['foot_skating_m_s']:.2f}) | {r['contact_fraction']:.2f} "
+                     f"({cap['contact_fraction']:.2f}) | {r['style_distance']:.2f} |")
     return lines
 
 
@@ -148,7 +148,8 @@ def main(argv=None) -> None:
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
             for floor in (0.0, PHASE_FLOOR):
                 rows += measure(loaded._replace(phase_floor=floor), list(loaded.model.data.styles), str(folder), new)
-        return report(args, rows, f"the models of {', '.join(map(str, args.model))} ({time.perf_counter() - t0:.0f} s)")
+        title = f"the models of {', '.join(map(str, args.model))} ({time.perf_counter() - t0:.0f} s)"
+        return write_report(args, rows, title)
     root = args.data or mocap_dir() / "100style"
     styles = [s for s in PAPER_BASE if s in available_styles(root)]
     t0 = time.perf_counter()
@@ -165,18 +166,15 @@ def main(argv=None) -> None:
         for floor in (0.0, PHASE_FLOOR):
             loaded = synthesis2022.Loaded(model, data, args.run / recipe, args.epochs, floor)
             rows += measure(loaded, styles, recipe)
-    report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
+    write_report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
            f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")
 
 
-def report(args, rows: list[dict], title: str) -> None:
+def write_report(args, rows: list[dict], title: str) -> None:
     lines = [title, "", *summary(rows), "", *row_table(rows)]
     args.run.mkdir(parents=True, exist_ok=True)
     (args.run / "closed_loop.md").write_text("\n".join(lines) + "\n")
-    with open(args.run / "closed_loop.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    quality_report.write_csv(rows, args.run / "closed_loop.csv")
     print("\n".join(lines[:len(summary(rows)) + 2]))
     print(f"written: {args.run / 'closed_loop.md'}, {args.run / 'closed_loop.csv'}")
 

@@ -130,8 +130,11 @@ def test_closed_loop_figures_tell_stepping_from_gliding():
         _row("LPN FiLM", "Angry", "circle", np.nan, np.nan, np.nan, finite=False),  # diverged: left out
         _row("PFNN One-hot", "Drunk", "straight", 1.4, 0.4, 0.8, 0.5, shows=True),  # 0.7x: not within 25%
         _row("PFNN One-hot", "Angry", "straight", 2.4, 0.5, 0.96, 0.7, shows=True)]  # 1.2x, feet down 96%
+    for r, ratio in zip(rows[4:6], (1.0, 0.1), strict=True):  # the LPN's local phases: one stalled
+        r["phase_rate_ratio"] = ratio
     f = report.closed_loop_figures(rows)
     lpn, pfnn = f["LPN FiLM"], f["PFNN One-hot"]
+    assert lpn["phase_rate_ratio"] == pytest.approx(0.55) and np.isnan(pfnn["phase_rate_ratio"])  # none: NaN
     assert (lpn["rows"], lpn["diverged"], lpn["stepping"], lpn["gliding"], lpn["stalled"]) == (3, 1, 1, 1, 1)
     assert (pfnn["rows"], pfnn["stepping"], pfnn["gliding"], pfnn["stalled"]) == (2, 1, 1, 0)
     np.testing.assert_allclose([lpn["steps_ratio"], lpn["skating_ratio"], lpn["style_distance"]],

@@ -65,15 +65,23 @@ def ordering_lines(results: dict[str, dict[str, np.ndarray]]) -> list[str]:
     return lines
 
 
+def _median(values) -> float:
+    """The median of the finite values (NaN when there is none: a model without local phases)."""
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    return float(np.median(values)) if len(values) else np.nan
+
+
 def closed_loop_figures(rows: list[dict]) -> dict[str, dict]:
     """Per model (the ``model`` of rows of :func:`jaxstyle.output.quality.run`, its capture rows
     included) the closed-loop figures that tell stepping from gliding: ``rows`` driven,
     ``diverged`` (a non-finite rollout), ``stalled`` (local phases stalled,
     :func:`jaxstyle.output.quality.phase_figures`), ``stepping`` (steps per second of the locked
     skeleton within 25% of its capture's), ``gliding`` (feet on the floor over 95% of frames where
-    its capture's are not), the medians over rows of ``steps_ratio`` and ``skating_ratio`` (raw foot
-    skating of the network's joints over its capture's), ``style_distance`` (m), ``wrist_range_ratio``,
-    and ``shows`` / ``styled`` (rows whose style shows, of the rows of a style other than Neutral)."""
+    its capture's are not), the medians over rows of ``steps_ratio``, ``skating_ratio`` (raw foot
+    skating of the network's joints over its capture's), ``phase_rate_ratio`` (the local phases'
+    advance over the capture's), ``style_distance`` (m), ``wrist_range_ratio``, and ``shows`` /
+    ``styled`` (rows whose style shows, of the rows of a style other than Neutral)."""
     captures = {(r["model"], r["style"]): r for r in rows if r["path"] == "capture"}
     out = {}
     for model in dict.fromkeys(r["model"] for r in rows):
@@ -89,6 +97,7 @@ def closed_loop_figures(rows: list[dict]) -> dict[str, dict]:
             "steps_ratio": float(np.median(steps)) if len(steps) else np.nan,
             "skating_ratio": float(np.median([r["foot_skating_m_s"] / c["foot_skating_m_s"] for r, c in finite]))
             if finite else np.nan,
+            "phase_rate_ratio": _median([r.get("phase_rate_ratio", np.nan) for r, _ in finite]),
             "style_distance": float(np.nanmedian([r["style_distance"] for r, _ in finite])) if finite else np.nan,
             "wrist_range_ratio": float(np.nanmedian([r["wrist_range_ratio"] for r, _ in finite])) if finite
             else np.nan,
