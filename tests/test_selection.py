@@ -153,3 +153,39 @@ def test_each_check_criterion_can_fail_a_pair():
     still = dict(ref, speed_m_s=np.array([0.0]))
     assert check_lib.passes_check({k: v[:, [0, 5]] for k, v in out.items()}, still["contact_fraction"],
                                   still["base_skating_m_s"], still["speed_m_s"], check).all()
+
+
+def test_judge_pairs_measures_every_pair_against_the_base_column(mocap):
+    """The one judgement of both papers' checks: a captured walk as the pairs' and the base's
+    rollout passes (no bone error, the capture's contacts, the base's skating, the path's length),
+    a pair that diverged or slides beyond the base fails, and the last column is the base's."""
+    from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
+    from jaxstyle.motion.bvh import read_bvh
+    from jaxstyle.motion.kinematics import UP_AXIS, global_positions
+    from jaxstyle.output import metrics
+
+    motion = read_bvh(mocap / "100style" / "Neutral" / "Neutral_FW.bvh")
+    pos = global_positions(motion)[:300]
+    fps, upm = float(motion.fps), estimate_units_per_meter(motion)
+    feet = list(FootJoints.find(motion).ankles) + list(FootJoints.find(motion).toes)
+    floor = floor_heights(pos[:, feet, UP_AXIS])
+    origin = pos[:, 0, [0, 2]]
+    check = selection.RolloutCheck(seconds=len(pos) / fps)
+    speed = float(np.sum(np.linalg.norm(np.diff(origin, axis=0), axis=-1))) / check.seconds  # units / s
+    real = metrics.positions_foot_stats(pos, motion, fps, floor, units_per_meter=upm, tolerance_m=check.tolerance_m)
+    sliding = pos.copy()
+    sliding[:, :, 0] += np.linspace(0, 3.0 * upm, len(pos))[:, None]  # every joint, feet too, slides 3 m more
+    diverged = np.where(np.arange(len(pos))[:, None, None] == 100, np.nan, pos)
+    columns = [pos, sliding, diverged, pos]  # three pairs, then the base
+    out, base = check_lib.judge_pairs([columns], [[origin, origin + (sliding - pos)[:, 0, [0, 2]], origin, origin]],
+                                      np.array([[True, True, False, True]]), motion, fps, [floor], upm, check,
+                                      np.array([speed]), np.array([real.contact_fraction]))
+    assert out["finite"].shape == (1, 3)
+    np.testing.assert_array_equal(out["passed"][0], [1.0, 0.0, 0.0])
+    why = [check_lib.failed_criteria({k: float(v[0, r]) for k, v in out.items()}, real.contact_fraction,
+                                     base["base_skating_m_s"][0], speed / upm, check) for r in range(3)]
+    assert why[0] == [] and why[2] == ["the rollout did not stay finite"]
+    assert [w.split(" ")[0] for w in why[1]] == ["foot"]  # slides: the skating criterion, nothing else
+    np.testing.assert_allclose(out["progress"][0, 0], 1.0)
+    assert out["skating_m_s"][0, 1] > out["skating_m_s"][0, 0] == pytest.approx(base["base_skating_m_s"][0])
+    assert np.isnan(out["bone_error"][0, 2]) and base["base_bone_error"][0] < 1e-3

@@ -58,7 +58,7 @@ from jaxstyle.mason2018.train import TrainData
 from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
-from jaxstyle.output.check import choose_rates, failed_criteria, passes_check, rollout_measures
+from jaxstyle.output.check import choose_rates, failed_criteria, judge_pairs
 from jaxstyle.train import defaults, scan
 
 # --- 1. hold-out -----------------------------------------------------------------------------------
@@ -159,10 +159,8 @@ def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normalis
     model = PFNNModel.create(params, normalisers, skeleton.num_joints)
     num_frames = int(round(check.seconds * fps))
     num_styles = len(data.styles)
-    num_rates = jax.tree.leaves(adapters_SxR)[0].shape[1]
-    out = {k: np.zeros((num_styles, num_rates)) for k in ROLLOUT_FIELDS}
-    ref = {k: np.zeros(num_styles) for k in ("contact_fraction", "skating_m_s", "speed_m_s", "base_skating_m_s",
-                                             "base_bone_error")}
+    ref = {k: np.zeros(num_styles) for k in ("contact_fraction", "skating_m_s", "speed_m_s")}
+    positions, origins, finite, floors, speeds = [], [], [], [], []
     styles = range(num_styles)
     if progress:
         from tqdm.auto import tqdm
@@ -181,21 +179,18 @@ def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normalis
         controls = loop.turning_path(num_frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
         adapters_R = jax.tree.map(lambda v, s=s: v[s], adapters_SxR)
         result = _rollout_rates(model, adapters_R, state, controls)
-        base = rollout(model, None, state, controls)
-        base_pos, base_origin = np.asarray(base.positions), np.asarray(base.origin)
-        base_measures = rollout_measures(base_pos, base_origin, bool(np.isfinite(base_pos).all()), skeleton, fps,
-                                         floor, upm, check, speed)
-        ref["base_skating_m_s"][s] = base_measures["skating_m_s"]
-        ref["base_bone_error"][s] = base_measures["bone_error"]
-        positions, origin, outputs = (np.asarray(v) for v in (result.positions, result.origin, result.outputs))
-        for r in range(num_rates):
-            finite = bool(np.isfinite(positions[r]).all() and np.isfinite(outputs[r]).all())
-            measures = rollout_measures(positions[r], origin[r], finite, skeleton, fps, floor, upm, check, speed)
-            for k, v in measures.items():
-                out[k][s, r] = v
-    out["passed"] = passes_check(out, ref["contact_fraction"], ref["base_skating_m_s"], ref["speed_m_s"],
-                                 check).astype(float)
-    return RolloutChecks(out, ref)
+        base = rollout(model, None, state, controls)  # the base alone: the last column
+        pos, origin, outputs = (np.asarray(v) for v in (result.positions, result.origin, result.outputs))
+        base_pos = np.asarray(base.positions)
+        positions.append([*pos, base_pos])
+        origins.append([*origin, np.asarray(base.origin)])
+        finite.append([*(np.isfinite(pos).all(axis=(1, 2, 3)) & np.isfinite(outputs).all(axis=(1, 2))),
+                       np.isfinite(base_pos).all()])
+        floors.append(floor)
+        speeds.append(speed)
+    out, base_figures = judge_pairs(positions, origins, np.array(finite, bool), skeleton, fps, floors, upm, check,
+                                    np.array(speeds), ref["contact_fraction"])
+    return RolloutChecks(out, {**ref, **base_figures})
 
 
 # --- the whole pipeline and its report ------------------------------------------------------------

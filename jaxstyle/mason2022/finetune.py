@@ -255,7 +255,7 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
     from jaxstyle.motion.kinematics import UP_AXIS, global_positions
     from jaxstyle.output import metrics
-    from jaxstyle.output.check import passes_check, rollout_measures
+    from jaxstyle.output.check import judge_pairs
 
     new, skeleton, raw = result.data, data.skeleton, data.new
     upm, num_joints = estimate_units_per_meter(skeleton), skeleton.num_joints
@@ -266,8 +266,7 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     gen0 = model.params["style"]["generator"]
     character = lpn_controller.StyleNetModel.create(model.params, model.config, data.base.normalisers(), skeleton)
     states, controls, styles = [], [], []
-    ref = {k: np.zeros(num_styles) for k in ("real_contact_fraction", "speed_m_s", "base_skating_m_s",
-                                            "base_bone_error")}
+    ref = {k: np.zeros(num_styles) for k in ("real_contact_fraction", "speed_m_s")}
     floors = []
     for s in range(num_styles):
         rows = new.train_rows[s]
@@ -298,19 +297,11 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     positions = np.asarray(out.positions)[:, :, :num_joints]
     origin = np.asarray(out.origin)
     finite_c = np.isfinite(positions).all(axis=(1, 2, 3)) & np.isfinite(np.asarray(out.outputs)).all(axis=(1, 2))
-    measures = {k: np.full((num_styles, num_rates + 1), np.nan) for k in CHECK_FIELDS[:-1]}
-    for c in range(len(styles)):
-        s, r = divmod(c, num_rates + 1)
-        row = rollout_measures(positions[c], origin[c], bool(finite_c[c]), skeleton, fps, floors[s], upm, check,
-                               ref["speed_m_s"][s] * upm)
-        for k, v in row.items():
-            measures[k][s, r] = v
-    ref["base_skating_m_s"] = measures["skating_m_s"][:, -1]
-    ref["base_bone_error"] = measures["bone_error"][:, -1]
-    out_sr = {k: v[:, :-1] for k, v in measures.items()}
-    out_sr["passed"] = passes_check(out_sr, ref["real_contact_fraction"], ref["base_skating_m_s"], ref["speed_m_s"],
-                                    check).astype(float)
-    return {**out_sr, **ref}
+    grid = (num_styles, num_rates + 1)
+    out_sr, base = judge_pairs(positions.reshape(grid + positions.shape[1:]), origin.reshape(grid + origin.shape[1:]),
+                               finite_c.reshape(grid), skeleton, fps, floors, upm, check, ref["speed_m_s"] * upm,
+                               ref["real_contact_fraction"])
+    return {**out_sr, **ref, **base}
 
 
 class FinetunedClips(NamedTuple):

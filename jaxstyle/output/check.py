@@ -3,9 +3,10 @@ adapters' few-shot sweep, :mod:`jaxstyle.mason2018.selection`; the 2022 FiLM gen
 :func:`jaxstyle.mason2022.finetune.closed_loop_check`).
 
 Each paper drives its fine-tuned pairs (style x dropout rate) and the model before fine-tuning
-along the check's path (:class:`jaxstyle.train.defaults.RolloutCheck`); what is measured of a
-rollout (:func:`rollout_measures`), when a pair passes (:func:`passes_check`) and which rate is
-chosen (:func:`choose_rates`) are written once here.
+along the check's path (:class:`jaxstyle.train.defaults.RolloutCheck`); the judgement of those
+rollouts (:func:`judge_pairs`: what is measured of each, :func:`rollout_measures`; when a pair
+passes, :func:`passes_check`, against the model before fine-tuning) and which rate is chosen
+(:func:`choose_rates`) are written once here.
 """
 
 from __future__ import annotations
@@ -35,6 +36,32 @@ def rollout_measures(positions_TxJx3, origin_Tx2, finite: bool, skeleton: Motion
     return {"finite": 1.0, "bone_error": float(np.mean(metrics.bone_length_errors(positions_TxJx3, skeleton))),
             "contact_fraction": feet.contact_fraction, "skating_m_s": feet.skating,
             "progress": travelled / (speed * check.seconds) if speed > 0 else np.nan}
+
+
+def judge_pairs(positions, origins, finite_SxR1: np.ndarray, skeleton: Motion, fps: float, floors,
+                units_per_meter: float, check: RolloutCheck, speeds_S: np.ndarray, real_contact_fraction_S: np.ndarray
+                ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Both papers' closed-loop check of a sweep, from its rollouts: ``positions[s][r]`` ``(T, J,
+    3)`` and ``origins[s][r]`` ``(T, 2)`` of every (new style ``s``, rate ``r``) pair and, as the
+    last ``r``, of the model before fine-tuning from the same start on the same path;
+    ``finite_SxR1`` whether each rollout stayed finite; per style its ``floors`` (the capture's
+    floor heights), ``speeds_S`` (file units per second) and the capture's share of frames with a
+    foot on the floor. Returns the pairs' ``(S, R)`` measures (:func:`rollout_measures`) with
+    ``passed`` (:func:`passes_check`), and per style the model before fine-tuning's
+    ``base_skating_m_s`` and ``base_bone_error``."""
+    num_styles, num_cols = np.shape(finite_SxR1)
+    measures = {k: np.full((num_styles, num_cols), np.nan) for k in NAN_MEASURES}
+    for s in range(num_styles):
+        for r in range(num_cols):
+            row = rollout_measures(positions[s][r], origins[s][r], bool(finite_SxR1[s, r]), skeleton, fps,
+                                   floors[s], units_per_meter, check, float(speeds_S[s]))
+            for k, v in row.items():
+                measures[k][s, r] = v
+    base = {"base_skating_m_s": measures["skating_m_s"][:, -1], "base_bone_error": measures["bone_error"][:, -1]}
+    out = {k: v[:, :-1] for k, v in measures.items()}
+    out["passed"] = passes_check(out, real_contact_fraction_S, base["base_skating_m_s"],
+                                 np.asarray(speeds_S) / units_per_meter, check).astype(float)
+    return out, base
 
 
 def passes_check(out: dict[str, np.ndarray], real_contact_fraction_S, base_skating_m_s_S, speed_m_s_S,
