@@ -151,10 +151,10 @@ def main() -> None:
     diag = [diagnose.diagnose(base.params, base.normalisers, s, base.skeleton)
             for s in (subjects[0], *(s for s in subjects if s.kind == "few-shot"))][:2]
     upm = js.estimate_units_per_meter(base.skeleton)
+    drawing = preview.Drawing(titles=[s.title for s in subjects[:4]],
+                              paths=[drawn[(s.title, "circle")][1] for s in subjects[:4]], units_per_meter=upm)
     sheet = preview.contact_sheet(run / "contact_sheet.png", [drawn[(s.title, "circle")][0] for s in subjects[:4]],
-                                  base.skeleton.parents, frames=6, titles=[s.title for s in subjects[:4]],
-                                  paths=[drawn[(s.title, "circle")][1] for s in subjects[:4]], units_per_meter=upm,
-                                  fps=base.skeleton.fps)
+                                  base.skeleton.parents, drawing, frames=6, fps=base.skeleton.fps)
     size = (f"{'SMALL preset: ' if a.small else ''}hidden {settings.hidden}, rank {settings.rank}, "
             f"{settings.epochs} epochs, contacts {'on' if settings.contacts else 'off'}")
     timing = (f"base {t_base:.0f} s, sweep {t_sweep:.0f} s, rollouts and measures {t_measure:.0f} s, "

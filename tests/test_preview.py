@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -17,6 +18,7 @@ PARENTS = np.array([-1, 0, 1, 0, 3])
 FPS = 25.0
 DPI = 40
 PANEL = 2.0  # inches, so 80-pixel panels at DPI
+SMALL = preview.Drawing(dpi=DPI, panel_size=PANEL)
 
 
 def walker(T: int, *, speed: float = 1.0, swing: float = 0.35, phase: float = 0.0) -> np.ndarray:
@@ -116,9 +118,10 @@ def test_project_is_orthographic_and_keeps_leading_axes():
 
 def test_gif_frame_count_duration_and_width(tmp_path):
     T, every = 23, 2
-    one = preview.render_gif(tmp_path / "one.gif", [walker(T)], PARENTS, FPS, every=every, dpi=DPI, panel_size=PANEL)
-    three = preview.render_gif(tmp_path / "three.gif", [walker(T)] * 3, PARENTS, FPS, every=every, dpi=DPI,
-                               panel_size=PANEL, titles=["a", "b", "c"], paths=[circle(), None, circle()])
+    one = preview.render_gif(tmp_path / "one.gif", [walker(T)], PARENTS, FPS, SMALL, every=every)
+    three = preview.render_gif(tmp_path / "three.gif", [walker(T)] * 3, PARENTS, FPS,
+                               dataclasses.replace(SMALL, titles=["a", "b", "c"], paths=[circle(), None, circle()]),
+                               every=every)
     for path in (one, three):
         frames, durations = gif_frames(path)
         assert len(frames) == math.ceil(T / every) == 12
@@ -132,7 +135,7 @@ def test_gif_frame_count_duration_and_width(tmp_path):
 def test_gif_keeps_real_time_when_frames_are_not_whole_centiseconds(tmp_path):
     # 30 fps, every frame: 33.3 ms each, which a GIF can only approximate in 10 ms steps
     T = 31
-    path = preview.render_gif(tmp_path / "w.gif", [walker(T)], PARENTS, 30.0, every=1, dpi=DPI, panel_size=PANEL)
+    path = preview.render_gif(tmp_path / "w.gif", [walker(T)], PARENTS, 30.0, SMALL, every=1)
     _, durations = gif_frames(path)
     assert len(durations) == T
     assert set(durations) <= {30, 40}
@@ -142,8 +145,8 @@ def test_gif_keeps_real_time_when_frames_are_not_whole_centiseconds(tmp_path):
 
 def test_gif_panels_show_their_own_character(tmp_path):
     a, b = walker(20), walker(20, swing=0.7, phase=1.5)
-    ab, _ = gif_frames(preview.render_gif(tmp_path / "ab.gif", [a, b], PARENTS, FPS, dpi=DPI, panel_size=PANEL))
-    aa, _ = gif_frames(preview.render_gif(tmp_path / "aa.gif", [a, a], PARENTS, FPS, dpi=DPI, panel_size=PANEL))
+    ab, _ = gif_frames(preview.render_gif(tmp_path / "ab.gif", [a, b], PARENTS, FPS, SMALL))
+    aa, _ = gif_frames(preview.render_gif(tmp_path / "aa.gif", [a, a], PARENTS, FPS, SMALL))
     for k in (2, 5, 8):
         # the same character in the same place gives the same pixels, another one visibly different pixels
         assert changed(panel(ab[k], 0, 2), panel(aa[k], 0, 2)) < 0.001
@@ -152,8 +155,8 @@ def test_gif_panels_show_their_own_character(tmp_path):
 
 def test_gif_camera_follows_the_character(tmp_path):
     T = 50  # 2 s at 1.5 m/s: 3 m, more than a panel's width
-    path = preview.render_gif(tmp_path / "f.gif", [walker(T, speed=1.5)], PARENTS, FPS, every=1, trails=False,
-                              dpi=2 * DPI, panel_size=PANEL)
+    path = preview.render_gif(tmp_path / "f.gif", [walker(T, speed=1.5)], PARENTS, FPS,
+                              dataclasses.replace(SMALL, trails=False, dpi=2 * DPI), every=1)
     frames, _ = gif_frames(path)
     colour = np.array(to_rgb(preview.PANEL_COLORS[0])) * 255
     for k in (0, T // 2, T - 1):
@@ -164,8 +167,7 @@ def test_gif_camera_follows_the_character(tmp_path):
 
 
 def test_gif_shorter_clip_holds_its_last_frame(tmp_path):
-    frames, _ = gif_frames(preview.render_gif(tmp_path / "h.gif", [walker(20), walker(9)], PARENTS, FPS, dpi=DPI,
-                                              panel_size=PANEL))
+    frames, _ = gif_frames(preview.render_gif(tmp_path / "h.gif", [walker(20), walker(9)], PARENTS, FPS, SMALL))
     assert len(frames) == 10
     # output frames 6 and 9 show input frames 12 and 18: the 9-frame clip is held, the other moves on
     assert changed(panel(frames[6], 1, 2), panel(frames[9], 1, 2)) == 0.0
@@ -173,9 +175,10 @@ def test_gif_shorter_clip_holds_its_last_frame(tmp_path):
 
 
 def test_gif_progress_bar_only_when_asked(tmp_path, capsys):
-    preview.render_gif(tmp_path / "q.gif", [walker(4)], PARENTS, FPS, dpi=DPI, panel_size=1.0)
+    tiny = dataclasses.replace(SMALL, panel_size=1.0)
+    preview.render_gif(tmp_path / "q.gif", [walker(4)], PARENTS, FPS, tiny)
     assert capsys.readouterr().err == ""
-    preview.render_gif(tmp_path / "p.gif", [walker(4)], PARENTS, FPS, dpi=DPI, panel_size=1.0, progress=True)
+    preview.render_gif(tmp_path / "p.gif", [walker(4)], PARENTS, FPS, tiny, progress=True)
     assert "2/2" in capsys.readouterr().err
 
 
@@ -185,9 +188,10 @@ def test_gif_progress_bar_only_when_asked(tmp_path, capsys):
 
 def test_contact_sheet_size_follows_rows_and_columns(tmp_path):
     chars = [walker(30), walker(30, swing=0.6)]
-    wide = preview.contact_sheet(tmp_path / "wide.png", chars[:1], PARENTS, frames=6, dpi=DPI, panel_size=PANEL)
-    tall = preview.contact_sheet(tmp_path / "tall.png", chars, PARENTS, frames=3, dpi=DPI, panel_size=PANEL,
-                                 titles=["slow", "big steps"], paths=[circle(), None], fps=FPS)
+    wide = preview.contact_sheet(tmp_path / "wide.png", chars[:1], PARENTS, SMALL, frames=6)
+    tall = preview.contact_sheet(tmp_path / "tall.png", chars, PARENTS,
+                                 dataclasses.replace(SMALL, titles=["slow", "big steps"], paths=[circle(), None]),
+                                 frames=3, fps=FPS)
     with Image.open(wide) as w, Image.open(tall) as t:
         assert w.format == t.format == "PNG"
         assert w.size[0] == 6 * round(PANEL * DPI) and t.size[0] == 3 * round(PANEL * DPI)
@@ -199,14 +203,14 @@ def test_contact_sheet_size_follows_rows_and_columns(tmp_path):
 
 
 def test_contact_sheet_columns_capped_by_clip_length(tmp_path):
-    path = preview.contact_sheet(tmp_path / "short.png", [walker(3)], PARENTS, frames=6, dpi=DPI, panel_size=PANEL)
+    path = preview.contact_sheet(tmp_path / "short.png", [walker(3)], PARENTS, SMALL, frames=6)
     with Image.open(path) as im:
         assert im.size[0] == 3 * round(PANEL * DPI)
 
 
 @pytest.mark.skipif(not writers.is_available("ffmpeg"), reason="ffmpeg not installed; the error branch is tested")
 def test_mp4_written_with_ffmpeg(tmp_path):
-    path = preview.render_mp4(tmp_path / "a.mp4", [walker(20)] * 2, PARENTS, FPS, dpi=DPI, panel_size=PANEL)
+    path = preview.render_mp4(tmp_path / "a.mp4", [walker(20)] * 2, PARENTS, FPS, SMALL)
     data = path.read_bytes()
     assert data[4:8] == b"ftyp" and len(data) > 1000
 
@@ -247,7 +251,9 @@ BAD_INPUTS = [
 @pytest.mark.parametrize("change, message", BAD_INPUTS)
 @pytest.mark.parametrize("render", ["gif", "sheet"])
 def test_bad_input_names_the_argument(tmp_path, render, change, message):
-    args = {"characters": [walker(10), walker(10)], "parents": PARENTS, **change}
+    drawn = {k: v for k, v in change.items() if k in ("titles", "paths", "units_per_meter")}  # Drawing's fields
+    args = {"characters": [walker(10), walker(10)], "parents": PARENTS,
+            **{k: v for k, v in change.items() if k not in drawn}, "drawing": preview.Drawing(**drawn)}
     with pytest.raises(ValueError, match=message):
         if render == "gif":
             preview.render_gif(tmp_path / "x.gif", fps=FPS, **args)

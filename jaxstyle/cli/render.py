@@ -53,6 +53,6 @@ def run(args, run: None) -> None:
             raise CLIError(f"{f}: a different skeleton or frame rate from {args.files[0]}; render them separately")
         chars.append(global_positions(m))
     write = preview.render_gif if args.out.suffix.lower() == ".gif" else preview.render_mp4
-    out = write(args.out, chars, parents, fps, titles=[f.stem for f in args.files], units_per_meter=upm,
-                every=args.every, progress=progress(args))
+    drawing = preview.Drawing(titles=[f.stem for f in args.files], units_per_meter=upm)
+    out = write(args.out, chars, parents, fps, drawing, every=args.every, progress=progress(args))
     print(f"wrote {out}")

@@ -19,6 +19,7 @@ or the global backend; GIFs need only Pillow, MP4s need ffmpeg.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from pathlib import Path
@@ -46,6 +47,35 @@ _SHADOW_COLOR = (0.0, 0.0, 0.0, 0.18)
 _TRAIL_SECONDS = 3.0
 _CAMERA_SMOOTH_SECONDS = 0.5
 _MIN_GIF_FRAME_MS = 20.0  # browsers play GIF frame delays under 20 ms as 100 ms
+
+
+@dataclasses.dataclass(frozen=True)
+class Drawing:
+    """What :func:`render_gif`, :func:`render_mp4` and :func:`contact_sheet` draw besides the
+    skeletons, and how: ``titles`` above the panels; ``paths``, one ``(N, 2)`` array of x, z ground
+    points (or None) per character, drawn dashed; ``trails``, the root's ground trajectory of the
+    last 3 s, fading out; ``units_per_meter`` sets the 1 m grid spacing; ``floor`` is the ground
+    height (default: the lowest joint of any character); ``yaw`` / ``elevation`` the camera angles
+    in degrees (:func:`project`); each panel is ``panel_size`` inches square (``None``: 3 in an
+    animation, 2 in a contact sheet) at ``dpi``."""
+
+    titles: Sequence[str] | None = None
+    paths: Sequence[np.ndarray | None] | None = None
+    trails: bool = True
+    units_per_meter: float = 1.0
+    floor: float | None = None
+    yaw: float = YAW_DEG
+    elevation: float = ELEVATION_DEG
+    panel_size: float | None = None
+    dpi: float = 80
+
+    def prepared(self, characters, parents, fps):
+        """The checked tracks, titles and camera of ``characters`` (:func:`_prepare`)."""
+        return _prepare(characters, parents, self.titles, self.paths, self.units_per_meter, self.floor, self.yaw,
+                        self.elevation, _CAMERA_SMOOTH_SECONDS, fps)
+
+    def panel(self, default: float) -> float:
+        return default if self.panel_size is None else self.panel_size
 _TITLE_BAND_IN = 0.3  # inches above panels for titles
 
 
@@ -374,78 +404,65 @@ def _check_animation_args(fps, every, dpi, panel_size) -> tuple[float, int]:
     return fps, every
 
 
-def render_gif(path: str | os.PathLike, characters: Sequence[np.ndarray], parents: np.ndarray, fps: float, *,
-               titles: Sequence[str] | None = None, paths: Sequence[np.ndarray | None] | None = None,
-               trails: bool = True, every: int = 2, units_per_meter: float = 1.0, dpi: float = 80,
-               panel_size: float = 3.0, progress: bool = False, floor: float | None = None, yaw: float = YAW_DEG,
-               elevation: float = ELEVATION_DEG) -> Path:
+def render_gif(path: str | os.PathLike, characters: Sequence[np.ndarray], parents: np.ndarray, fps: float,
+               drawing: Drawing = Drawing(), *, every: int = 2, progress: bool = False) -> Path:
     """Write an animated GIF of the characters side by side (Pillow only, no ffmpeg) and return its path.
 
     ``characters`` is a sequence of ``(T, J, 3)`` global positions (a single array is one character);
-    shorter clips hold their last frame. ``parents (J,)`` is the skeleton. ``titles`` go above the
-    panels, ``paths`` is one ``(N, 2)`` array of x, z ground points (or None) per character, drawn
-    dashed. ``trails`` draws the root's ground trajectory of the last 3 s, fading out. Every
-    ``every``-th frame is drawn and the GIF keeps real time: frames last ``1000 * every / fps`` ms on
-    average (GIF delays are in 10 ms steps, so they alternate when needed). GIFs cannot show frames
-    shorter than 20 ms, so ``1000 * every / fps`` must be at least 20. ``units_per_meter`` sets the
-    1 m grid spacing; ``floor`` is the ground height (default: the lowest joint of any character);
-    ``yaw``/``elevation`` the camera angles in degrees (see :func:`project`). Each panel is
-    ``panel_size`` inches square at ``dpi``. ``progress`` shows a tqdm bar over frames.
+    shorter clips hold their last frame. ``parents (J,)`` is the skeleton. ``drawing``: titles,
+    paths, trails, grid, camera and panel size (:class:`Drawing`). Every ``every``-th frame is drawn
+    and the GIF keeps real time: frames last ``1000 * every / fps`` ms on average (GIF delays are in
+    10 ms steps, so they alternate when needed). GIFs cannot show frames shorter than 20 ms, so
+    ``1000 * every / fps`` must be at least 20. ``progress`` shows a tqdm bar over frames.
     """
-    fps, every = _check_animation_args(fps, every, dpi, panel_size)
+    panel_size = drawing.panel(3.0)
+    fps, every = _check_animation_args(fps, every, drawing.dpi, panel_size)
     frame_ms = 1000.0 * every / fps
     if frame_ms < _MIN_GIF_FRAME_MS:
         raise ValueError(f"every={every} at fps={fps:g} gives {frame_ms:.1f} ms GIF frames; browsers play frames "
                          f"under 20 ms too slowly, so use every >= {math.ceil(_MIN_GIF_FRAME_MS * fps / 1000)}")
-    scene, titles, view = _prepare(characters, parents, titles, paths, units_per_meter, floor, yaw, elevation,
-                                   _CAMERA_SMOOTH_SECONDS, fps)
+    scene, titles, view = drawing.prepared(characters, parents, fps)
     return _animate(path, _RealTimePillowWriter(fps=fps / every), scene, titles, view, fps=fps, every=every,
-                    trails=trails, dpi=dpi, panel_size=panel_size, progress=progress)
+                    trails=drawing.trails, dpi=drawing.dpi, panel_size=panel_size, progress=progress)
 
 
-def render_mp4(path: str | os.PathLike, characters: Sequence[np.ndarray], parents: np.ndarray, fps: float, *,
-               titles: Sequence[str] | None = None, paths: Sequence[np.ndarray | None] | None = None,
-               trails: bool = True, every: int = 2, units_per_meter: float = 1.0, dpi: float = 80,
-               panel_size: float = 3.0, progress: bool = False, floor: float | None = None, yaw: float = YAW_DEG,
-               elevation: float = ELEVATION_DEG) -> Path:
+def render_mp4(path: str | os.PathLike, characters: Sequence[np.ndarray], parents: np.ndarray, fps: float,
+               drawing: Drawing = Drawing(), *, every: int = 2, progress: bool = False) -> Path:
     """Write the same animation as :func:`render_gif` as an MP4 through ffmpeg and return its path.
 
     The video runs at ``fps / every`` frames per second. Raises ``RuntimeError`` when matplotlib
     cannot find ffmpeg (``render_gif`` needs no ffmpeg).
     """
-    fps, every = _check_animation_args(fps, every, dpi, panel_size)
-    scene, titles, view = _prepare(characters, parents, titles, paths, units_per_meter, floor, yaw, elevation,
-                                   _CAMERA_SMOOTH_SECONDS, fps)
+    panel_size = drawing.panel(3.0)
+    fps, every = _check_animation_args(fps, every, drawing.dpi, panel_size)
+    scene, titles, view = drawing.prepared(characters, parents, fps)
     if not writers.is_available("ffmpeg"):
         raise RuntimeError("ffmpeg was not found, so render_mp4 cannot write MP4; render_gif needs no ffmpeg")
-    return _animate(path, FFMpegWriter(fps=fps / every), scene, titles, view, fps=fps, every=every, trails=trails,
-                    dpi=dpi, panel_size=panel_size, progress=progress)
+    return _animate(path, FFMpegWriter(fps=fps / every), scene, titles, view, fps=fps, every=every,
+                    trails=drawing.trails, dpi=drawing.dpi, panel_size=panel_size, progress=progress)
 
 
 # ----------------------------------------------------------------------------------------------------------------------
 # still frames
 
 
-def contact_sheet(path: str | os.PathLike, characters: Sequence[np.ndarray], parents: np.ndarray, *, frames: int = 6,
-                  titles: Sequence[str] | None = None, paths: Sequence[np.ndarray | None] | None = None,
-                  units_per_meter: float = 1.0, dpi: float = 80, panel_size: float = 2.0, trails: bool = True,
-                  fps: float | None = None, floor: float | None = None, yaw: float = YAW_DEG,
-                  elevation: float = ELEVATION_DEG) -> Path:
+def contact_sheet(path: str | os.PathLike, characters: Sequence[np.ndarray], parents: np.ndarray,
+                  drawing: Drawing = Drawing(), *, frames: int = 6, fps: float | None = None) -> Path:
     """Write a PNG grid of still frames, one row per character, and return its path.
 
     Columns are ``frames`` evenly spaced frames from the first to the last of the longest clip (fewer
-    when the clip is shorter than that); each cell is drawn as in :func:`render_gif` and labelled
-    with its frame index, and each row's title sits above it. With ``fps`` the label also gives the
-    time and the trail covers the last 3 s (otherwise everything before the frame) and the camera is
-    smoothed as in the GIF. Cells are ``panel_size`` inches square at ``dpi``.
+    when the clip is shorter than that); each cell is drawn as in :func:`render_gif` (``drawing``,
+    :class:`Drawing`; cells 2 inches square unless it says) and labelled with its frame index, and
+    each row's title sits above it. With ``fps`` the label also gives the time and the trail covers
+    the last 3 s (otherwise everything before the frame) and the camera is smoothed as in the GIF.
     """
     frames = _check_count("frames", frames)
+    dpi, panel_size, trails = drawing.dpi, drawing.panel(2.0), drawing.trails
     _check_positive("dpi", dpi)
     _check_positive("panel_size", panel_size)
     if fps is not None:
         fps = _check_positive("fps", fps)
-    scene, titles, view = _prepare(characters, parents, titles, paths, units_per_meter, floor, yaw, elevation,
-                                   _CAMERA_SMOOTH_SECONDS, fps)
+    scene, titles, view = drawing.prepared(characters, parents, fps)
     num_frames = max(track.num_frames for track in scene)
     columns = min(frames, num_frames)
     shown = np.round(np.linspace(0, num_frames - 1, columns)).astype(int)

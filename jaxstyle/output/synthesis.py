@@ -139,14 +139,16 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
         idx = [k for k, (_, q) in enumerate(pairs) if q == p]
         chars = [drawn(shown[k]) for k in idx]
         path_xz = [signals[k].positions for k in idx]
-        kwargs = dict(titles=titles, paths=path_xz, units_per_meter=upm, every=every, progress=progress)
+        drawing = preview.Drawing(titles=titles, paths=path_xz, units_per_meter=upm)
         if options.gif:
-            files.append(preview.render_gif(out / f"{p}.gif", chars, skeleton.parents, fps, **kwargs))
+            files.append(preview.render_gif(out / f"{p}.gif", chars, skeleton.parents, fps, drawing, every=every,
+                                            progress=progress))
         if options.mp4:
-            files.append(preview.render_mp4(out / f"{p}.mp4", chars, skeleton.parents, fps, **kwargs))
+            files.append(preview.render_mp4(out / f"{p}.mp4", chars, skeleton.parents, fps, drawing, every=every,
+                                            progress=progress))
         if options.contact_sheet and p == path_names[0]:
-            files.append(preview.contact_sheet(out / "contact_sheet.png", chars, skeleton.parents, frames=6,
-                                               titles=titles, paths=path_xz, units_per_meter=upm, fps=fps))
+            files.append(preview.contact_sheet(out / "contact_sheet.png", chars, skeleton.parents, drawing, frames=6,
+                                               fps=fps))
     # each character's capture (and its phase rate), once per (dataset, style), and Neutral's: the
     # style distance's references; the real clips' rows below read the same clips
     captures = {}

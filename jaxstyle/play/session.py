@@ -374,7 +374,7 @@ def save_recording(rollout: Rollout | lpn_controller.LPNRollout, model: AnyPlayM
         motion = export.lock_feet(motion, rollout, skeleton=skeleton).motion
     files = list(export.save_rollout(path, rollout, skeleton, motion=motion).values())
     if gif:  # the exported skeleton, as the BVH holds it
+        drawing = preview.Drawing(titles=[title or Path(path).stem], units_per_meter=model.units_per_meter)
         files.append(preview.render_gif(Path(path).with_suffix(".gif"), [global_positions(motion)],
-                                        skeleton.parents, skeleton.fps, titles=[title or Path(path).stem],
-                                        units_per_meter=model.units_per_meter, every=2))
+                                        skeleton.parents, skeleton.fps, drawing, every=2))
     return files
