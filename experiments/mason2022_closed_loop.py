@@ -167,15 +167,16 @@ def main(argv=None) -> None:
             loaded = synthesis2022.Loaded(model, data, args.run / recipe, args.epochs, floor)
             rows += measure(loaded, styles, recipe)
     write_report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
-           f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")
+                 f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")
 
 
 def write_report(args, rows: list[dict], title: str) -> None:
-    lines = [title, "", *summary(rows), "", *row_table(rows)]
+    head = [title, "", *summary(rows)]
+    lines = [*head, "", *row_table(rows)]
     args.run.mkdir(parents=True, exist_ok=True)
     (args.run / "closed_loop.md").write_text("\n".join(lines) + "\n")
     quality_report.write_csv(rows, args.run / "closed_loop.csv")
-    print("\n".join(lines[:len(summary(rows)) + 2]))
+    print("\n".join(head))
     print(f"written: {args.run / 'closed_loop.md'}, {args.run / 'closed_loop.csv'}")
 
 

@@ -82,7 +82,7 @@ def run(args, run: Run) -> None:
     jmap = user_map or base.settings.joint_map
     if args.clip:
         specs = folders.user_clip_specs(args.clip, not args.asymmetric,
-                                         tuple(args.clip_range) if args.clip_range else None, jmap)
+                                        tuple(args.clip_range) if args.clip_range else None, jmap)
     else:
         sets = args.sets or [s for s in folders.available_styles(root) if s not in base.settings.styles]
         if not sets:

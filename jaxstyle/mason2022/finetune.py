@@ -151,7 +151,7 @@ class FinetuneResult:
         """The model with one new style's fine-tuned generator, at its chosen rate unless ``rate_index``."""
         s = self.styles.index(style)
         return with_generator(model.params, self.generators, s,
-                                        int(self.chosen[s]) if rate_index is None else rate_index)
+                              int(self.chosen[s]) if rate_index is None else rate_index)
 
 
 SPLITS = ("validation", "test")

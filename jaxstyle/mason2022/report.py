@@ -66,7 +66,7 @@ def ordering_lines(results: dict[str, dict[str, np.ndarray]]) -> list[str]:
 
 
 def _median(values) -> float:
-    """The median of the finite values (NaN when there is none: a model without local phases)."""
+    """The median of the finite values (NaN when there is none, e.g. a model without local phases)."""
     values = np.asarray(values, float)
     values = values[np.isfinite(values)]
     return float(np.median(values)) if len(values) else np.nan
@@ -98,9 +98,8 @@ def closed_loop_figures(rows: list[dict]) -> dict[str, dict]:
             "skating_ratio": float(np.median([r["foot_skating_m_s"] / c["foot_skating_m_s"] for r, c in finite]))
             if finite else np.nan,
             "phase_rate_ratio": _median([r.get("phase_rate_ratio", np.nan) for r, _ in finite]),
-            "style_distance": float(np.nanmedian([r["style_distance"] for r, _ in finite])) if finite else np.nan,
-            "wrist_range_ratio": float(np.nanmedian([r["wrist_range_ratio"] for r, _ in finite])) if finite
-            else np.nan,
+            "style_distance": _median([r["style_distance"] for r, _ in finite]),
+            "wrist_range_ratio": _median([r["wrist_range_ratio"] for r, _ in finite]),
             "shows": sum(bool(r["style_shows"]) for r in styled), "styled": len(styled)}
     return out
 

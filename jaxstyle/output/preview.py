@@ -47,6 +47,7 @@ _SHADOW_COLOR = (0.0, 0.0, 0.0, 0.18)
 _TRAIL_SECONDS = 3.0
 _CAMERA_SMOOTH_SECONDS = 0.5
 _MIN_GIF_FRAME_MS = 20.0  # browsers play GIF frame delays under 20 ms as 100 ms
+_TITLE_BAND_IN = 0.3  # inches above panels for titles
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,7 +77,6 @@ class Drawing:
 
     def panel(self, default: float) -> float:
         return default if self.panel_size is None else self.panel_size
-_TITLE_BAND_IN = 0.3  # inches above panels for titles
 
 
 def project(points_Nx3: np.ndarray, yaw: float = YAW_DEG, elevation: float = ELEVATION_DEG) -> np.ndarray:
