@@ -46,9 +46,9 @@ def free_port() -> int:
 # test process busy it renders at about 4 frames/s at 1280x720 (measured with requestAnimationFrame
 # while a training job ran), and a page that slow once needed over 10 s to show a new status line.
 PAGE_SECONDS = 30.0
-# The page's own report of its camera comes after it has drawn the change; in one of about seven
-# full test runs on the 2-core machine (both workers busy) none came within 30 s, so that one wait
-# allows twice as long. It still fails when the page never reports, or reports the wrong view.
+# The page's own report of its camera comes after it has drawn the change, which under load can take
+# tens of seconds, so that one wait allows twice as long. It still fails when the page never
+# reports, or reports the wrong view.
 REPORT_SECONDS = 2 * PAGE_SECONDS
 
 
@@ -126,7 +126,7 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
     server.session.stop()
     wait_for(lambda: server.session.characters[0].stand > 0.999, PAGE_SECONDS, "the character to stand")
 
-    asked = [0.0]
+    asked = [0.0, 0]
 
     def page_views_character():
         here = server.session.origin()[0]
@@ -134,16 +134,19 @@ def test_steer_switch_style_and_screenshot(browser, served, tmp_path):
             return reported[-1]
         if time.monotonic() - asked[0] > 2.0:
             # ask the page for its view: viser's page reports its camera at once when told its field
-            # of view (a page that renders slowly, under load, may otherwise report only when moved)
-            asked[0] = time.monotonic()
+            # of view (a page that renders slowly, under load, may otherwise report only when moved).
+            # viser sends nothing when the value is unchanged, so the request alternates the field of
+            # view by 0.001 rad (the ray through the middle of the view, used below, does not depend on it)
+            asked[0], asked[1] = time.monotonic(), asked[1] + 1
             for client in server._server.get_clients().values():
-                client.camera.fov = client.camera.fov
+                client.camera.fov = fov0 + 1e-3 * (asked[1] % 2)
         return None
 
     # the camera follows: the page's own report puts its look-at point on the standing character
     # (a regression test: the follow once set look_at before position, and viser's position
     # setter moves look_at along, so the page looked at the wrong place)
     clients = server._server.get_clients
+    fov0 = next(iter(clients().values())).camera.fov
     position, look_at = wait_for(page_views_character, REPORT_SECONDS, "the page's camera to follow the character",
                                  detail=lambda: f"{len(reported)} camera reports, the last {reported[-1:]}, the "
                                                 f"character at {server.session.origin()[0]}, the server's copy of the "
