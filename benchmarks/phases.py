@@ -60,7 +60,7 @@ def main() -> None:
     t_full = best_of(lambda: local_phase.local_phases(motion), args.repeats)
     src = result.source
     amax = local_phase.MAX_AMPLITUDE
-    t_fit = best_of(lambda: sinusoid.fit_sinusoids(src, fps, max_amplitude=amax), args.repeats)
+    t_fit = best_of(lambda: sinusoid.fit_sinusoids(src, fps, sinusoid.SinusoidConfig(max_amplitude=amax)), args.repeats)
 
     half = sinusoid.window_frames(fps) // 2
     tau = (np.arange(2 * half + 1) - half) / fps

@@ -36,7 +36,7 @@ def stance_table(mocap: Path) -> None:
         for path in files:
             motion = js.read_bvh(path)
             for rule in contacts.CONTACT_RULES:
-                fractions[rule].append(contacts.foot_contacts(motion, rule=rule).foot.mean())
+                fractions[rule].append(contacts.foot_contacts(motion, contacts.ContactConfig(rule=rule)).foot.mean())
         cells = [f"{np.median(f):.2f} ({min(f):.2f}-{max(f):.2f})" for f in
                  (fractions["paper2022"], fractions["scaled"])]
         print(f"| {name} | {len(files)} | {cells[0]} | {cells[1]} |")
@@ -50,8 +50,9 @@ def invariance_table(mocap: Path) -> None:
         motion = js.read_bvh(mocap / name)
         motion = motion.frames(0, 1200) if motion.num_frames > 1200 else motion
         for rule in contacts.CONTACT_RULES:
-            ref = contacts.foot_contacts(motion, rule=rule).foot
-            cells = [f"{(contacts.foot_contacts(transform.scale(motion, s), rule=rule).foot == ref).mean():.3f}"
+            config = contacts.ContactConfig(rule=rule)
+            ref = contacts.foot_contacts(motion, config).foot
+            cells = [f"{(contacts.foot_contacts(transform.scale(motion, s), config).foot == ref).mean():.3f}"
                      for s in (0.01, 2.54, 100.0, 0.7, 1.3)]
             for fps in (30.0, 60.0, 120.0):
                 if fps == motion.fps:
@@ -60,7 +61,7 @@ def invariance_table(mocap: Path) -> None:
                 m = transform.resample(motion, fps)
                 near = np.minimum(np.round(np.arange(m.num_frames) * motion.fps / fps).astype(int),
                                   motion.num_frames - 1)
-                cells.append(f"{(contacts.foot_contacts(m, rule=rule).foot == ref[near]).mean():.3f}")
+                cells.append(f"{(contacts.foot_contacts(m, config).foot == ref[near]).mean():.3f}")
             print(f"| {name} | {rule} | " + " | ".join(cells) + " |")
 
 

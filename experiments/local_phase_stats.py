@@ -15,7 +15,8 @@ import dataclasses
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle.labels.local_phase import MAX_AMPLITUDE, local_phases
+from jaxstyle.labels.local_phase import MAX_AMPLITUDE, LocalPhaseConfig, local_phases
+from jaxstyle.labels.sinusoid import SinusoidConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -26,7 +27,7 @@ class Config:
 
 
 def stats(motion: js.Motion, bound: float | None) -> tuple[float, float]:
-    res = local_phases(motion, max_amplitude=bound)
+    res = local_phases(motion, LocalPhaseConfig(sinusoid=SinusoidConfig(max_amplitude=bound)))
     advance_hz = np.mod(np.diff(res.phase, axis=0), 1.0) * motion.fps
     plausible = float(np.mean((advance_hz > 0.2) & (advance_hz < 4.5)))
     magnitude = np.linalg.norm(res.features, axis=-1)

@@ -30,8 +30,18 @@ def files(folder: Path, names: tuple[str, ...]) -> list[Path]:
     return [folder / f"{n}{suffix}.bvh" for n in names for suffix in ("", "_mirror")]
 
 
+def footstep_config(contact_moment: str | None = None, min_lift: float | None = None,
+                    merge_window: float | None = None, **contact_fields) -> phase.FootstepConfig:
+    """The default :class:`jaxstyle.labels.phase.FootstepConfig` with the given fields changed
+    (``contact_fields``: those of its :class:`jaxstyle.labels.contacts.ContactConfig`)."""
+    base = phase.FootstepConfig()
+    changes = {k: v for k, v in dict(contact_moment=contact_moment, min_lift=min_lift,
+                                     merge_window=merge_window).items() if v is not None}
+    return dataclasses.replace(base, contacts=dataclasses.replace(base.contacts, **contact_fields), **changes)
+
+
 def summary(paths: list[Path], **kwargs) -> tuple[float, float]:
-    errors = np.concatenate([phase.label_errors(p, **kwargs) for p in paths])
+    errors = np.concatenate([phase.label_errors(p, footstep_config(**kwargs)) for p in paths])
     return float(np.median(errors)), float(np.percentile(errors, 90))
 
 
@@ -43,7 +53,7 @@ def step_offsets(paths: list[Path], **kwargs) -> np.ndarray:
         labelled = phase.read_footsteps(str(p)[:-4] + "_footsteps.txt")  # 0-based (the files count from 1)
         if len(labelled) < 2:
             continue
-        left, right = phase.footsteps(motion, **kwargs)
+        left, right = phase.footsteps(motion, footstep_config(**kwargs))
         for i, frame in enumerate(labelled):  # footsteps alternate right, left, right, ...
             detected = right if i % 2 == 0 else left
             if 0 <= frame < motion.num_frames and len(detected):
@@ -77,7 +87,7 @@ def main(config: Config = Config()) -> None:
     print(f"  no hysteresis (v_max={phase.DEFAULT_SPEED_THRESHOLD_M_S:g} both ways): {fm:.3f} / {fp:.3f}")
 
     print("\nContact rule (jaxstyle.labels.contacts): flat median / p90, stairs median / p90")
-    old = dict(contact_rule="paper2022", speed_threshold=0.15, release_speed=0.5, min_lift=0.03)
+    old = dict(rule="paper2022", speed_threshold=0.15, release_speed=0.5, min_lift=0.03)
     for label, kwargs in (("scaled (default)", {}),
                           ("paper2022 units, thresholds 0.15 / 0.5 m/s, lift 0.03 m (the earlier default)", old),
                           ("the same, no merging of landings of both feet", dict(old, merge_window=0.0))):

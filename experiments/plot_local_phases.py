@@ -13,7 +13,7 @@ import dataclasses
 from pathlib import Path
 
 import jaxstyle as js
-from jaxstyle.labels.local_phase import local_phases
+from jaxstyle.labels.local_phase import LocalPhaseConfig, local_phases
 from jaxstyle.output.viz import plot_local_phases
 
 
@@ -31,7 +31,7 @@ def run(config: Config) -> Path:
     if not path.is_file():
         path = js.mocap_dir() / config.clip
     motion = js.read_bvh(path)
-    result = local_phases(motion, foot_source=config.foot_source)
+    result = local_phases(motion, LocalPhaseConfig(foot_source=config.foot_source))
     stop = min(motion.num_frames, config.start + int(round(config.seconds * motion.fps)))
     fig = plot_local_phases(result, config.start, stop, title=f"{path.stem}: local phases",
                             marker=(config.start + stop) // 2)

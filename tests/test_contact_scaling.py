@@ -65,8 +65,8 @@ def test_the_paper_rule_fails_the_size_test_that_the_scaled_rule_passes(clips):
     centimetres and a CMU one in x100 units as millimetres, and the contacts change."""
     for name, s in (("100style/Elated/Elated_FW.bvh", 0.7), ("xia/neutral_01_000.bvh", 100.0)):
         motion = clips[name]
-        ref = contacts.foot_contacts(motion, rule="paper2022").foot
-        got = contacts.foot_contacts(transform.scale(motion, s), rule="paper2022").foot
+        ref = contacts.foot_contacts(motion, contacts.ContactConfig(rule="paper2022")).foot
+        got = contacts.foot_contacts(transform.scale(motion, s), contacts.ContactConfig(rule="paper2022")).foot
         assert (got == ref).mean() < 0.95
 
 
@@ -87,7 +87,8 @@ def _paper_reference(motion):
 @pytest.mark.parametrize("name", CLIPS)
 def test_paper2022_is_the_papers_rule(clips, name):
     motion = clips[name]
-    np.testing.assert_array_equal(contacts.foot_contacts(motion, rule="paper2022").foot, _paper_reference(motion))
+    paper = contacts.ContactConfig(rule="paper2022")
+    np.testing.assert_array_equal(contacts.foot_contacts(motion, paper).foot, _paper_reference(motion))
 
 
 def test_on_100style_the_scaled_rule_is_the_papers(clips):

@@ -137,12 +137,12 @@ def test_global_phase_on_stairs_is_reported_not_wild(mocap):
 
 def test_contact_moment_is_a_parameter(mocap):
     motion = js.read_bvh(mocap / "pfnn_excerpt/NewCaptures01_000.bvh")
-    toe = phase.footsteps(motion, contact_moment="toe")
-    planted = phase.footsteps(motion, contact_moment="planted")
+    toe = phase.footsteps(motion, phase.FootstepConfig(contact_moment="toe"))
+    planted = phase.footsteps(motion, phase.FootstepConfig(contact_moment="planted"))
     assert all(len(a) == len(b) for a, b in zip(toe, planted, strict=True))
     assert all((b >= a).all() for a, b in zip(toe, planted, strict=True))  # the whole foot lands after the toe
     with pytest.raises(ValueError, match="contact moment"):
-        phase.footsteps(motion, contact_moment="ankle")
+        phase.footsteps(motion, phase.FootstepConfig(contact_moment="ankle"))
 
 
 def test_global_phase_of_a_still_clip_is_constant(mocap):

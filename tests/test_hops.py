@@ -60,7 +60,7 @@ def test_hops_keep_one_step_per_landing(mocap):
     both = np.sort(np.concatenate([left, right]))
     assert len(both) >= 2 and np.diff(both).min() > phase.MIN_MERGE_FRAMES
     # without the merge (only starts in one frame are one landing) the two feet land 1 frame apart
-    left0, right0 = phase.footsteps(motion, merge_window=0.0)
+    left0, right0 = phase.footsteps(motion, phase.FootstepConfig(merge_window=0.0))
     p0 = phase.phase_from_contact_starts(motion.num_frames, right0, left0)
     assert phase_jumps(p0).max() >= MAX_JUMP
 

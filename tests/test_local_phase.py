@@ -171,18 +171,18 @@ def test_every_shared_clip_is_labelled(mocap):
 
 def test_foot_sources_and_errors(mocap):
     motion = js.read_bvh(mocap / "100style/Angry/Angry_FW.bvh").frames(600, 1200)
-    free = lp.local_phases(motion, foot_source="free")
+    free = lp.local_phases(motion, lp.LocalPhaseConfig(foot_source="free"))
     assert free.sources == ("free",) * 4
-    mixed = lp.local_phases(motion, sources={"LeftAnkle": "free"})
+    mixed = lp.local_phases(motion, lp.LocalPhaseConfig(sources={"LeftAnkle": "free"}))
     assert mixed.sources == ("free", "free", "contact", "free")
-    auto = lp.local_phases(motion, foot_source="auto")
+    auto = lp.local_phases(motion, lp.LocalPhaseConfig(foot_source="auto"))
     assert auto.sources[2:] == ("contact", "contact")  # a walk: both feet touch down
     with pytest.raises(ValueError, match="foot_source"):
-        lp.local_phases(motion, foot_source="hop")
+        lp.local_phases(motion, lp.LocalPhaseConfig(foot_source="hop"))
     with pytest.raises(ValueError, match="no contact source"):
-        lp.local_phases(motion, sources={"RightWrist": "contact"})
+        lp.local_phases(motion, lp.LocalPhaseConfig(sources={"RightWrist": "contact"}))
     with pytest.raises(js.MotionDataError, match="unknown joint"):
-        lp.local_phases(motion, bones=["RightWrist", "Tail"])
+        lp.local_phases(motion, lp.LocalPhaseConfig(bones=["RightWrist", "Tail"]))
 
 
 def test_auto_uses_contact_free_source_for_a_lifted_foot(mocap):
@@ -192,7 +192,7 @@ def test_auto_uses_contact_free_source_for_a_lifted_foot(mocap):
     # bend the left knee 90 degrees all along: the left foot never touches down (a hop on the right)
     rot[:, knee] = js.motion.quat.mul(rot[:, knee], js.motion.quat.from_axis_angle(np.array([1.0, 0, 0]), np.pi / 2))
     hop = motion.replace(rotations=rot)
-    res = lp.local_phases(hop, foot_source="auto")
+    res = lp.local_phases(hop, lp.LocalPhaseConfig(foot_source="auto"))
     assert res.sources[2:] == ("contact", "free")
 
 

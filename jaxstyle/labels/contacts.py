@@ -289,35 +289,50 @@ class FootContacts:
 CONTACT_MOMENTS = ("heel", "toe", "first", "planted")
 
 
-def foot_contacts(motion: Motion, *, height_threshold: float | None = HEIGHT_THRESHOLD_M,
-                  speed_threshold: float | None = SPEED_THRESHOLD_M_S,
-                  release_speed: float | None = None,
-                  units_per_meter: float | None = None, max_gap: float = 0.0, min_duration: float = 0.0,
-                  feet: FootJoints | None = None, positions_TxJx3: np.ndarray | None = None,
-                  rule: str = DEFAULT_CONTACT_RULE) -> FootContacts:
+@dataclass(frozen=True)
+class ContactConfig:
+    """How a foot joint is judged on the floor (2022 section 4.1.2); the defaults are the paper's.
+
+    Attributes:
+      height_threshold, speed_threshold: ``d_max`` (m) and ``v_max`` (m/s); ``None`` disables a
+        test.
+      release_speed: m/s; adds hysteresis (see :func:`joint_contacts`); ``None``: off.
+      max_gap, min_duration: in seconds; gaps up to ``max_gap`` inside a contact are filled and
+        contacts shorter than ``min_duration`` dropped (both 0, i.e. off, as in the paper;
+        :func:`jaxstyle.labels.phase.global_phase` uses them to ignore single-frame flicker).
+      rule: ``"scaled"`` (default: thresholds for the skeleton's size, speeds over a fixed time
+        span) or ``"paper2022"`` (the paper's setting); see the module docstring.
+    """
+
+    height_threshold: float | None = HEIGHT_THRESHOLD_M
+    speed_threshold: float | None = SPEED_THRESHOLD_M_S
+    release_speed: float | None = None
+    max_gap: float = 0.0
+    min_duration: float = 0.0
+    rule: str = DEFAULT_CONTACT_RULE
+
+
+def foot_contacts(motion: Motion, config: ContactConfig = ContactConfig(), *,
+                  units_per_meter: float | None = None, feet: FootJoints | None = None,
+                  positions_TxJx3: np.ndarray | None = None) -> FootContacts:
     """Heel and toe contacts of both feet (2022 section 4.1.2), left then right.
 
     Args:
-      height_threshold, speed_threshold: ``d_max`` (m) and ``v_max`` (m/s), paper defaults;
-        ``None`` disables a test; ``release_speed`` adds hysteresis (see :func:`joint_contacts`).
-      rule: ``"scaled"`` (default: thresholds for the skeleton's size, speeds over a fixed time
-        span) or ``"paper2022"`` (the paper's setting); see the module docstring.
+      config: thresholds, hysteresis, clean-up and unit rule (:class:`ContactConfig`).
       units_per_meter: file units per metre; when omitted, the rule's
         (:func:`contact_units_per_meter`).
-      max_gap, min_duration: in seconds; gaps up to ``max_gap`` inside a contact are filled and
-        contacts shorter than ``min_duration`` dropped (both 0, i.e. off, by default as in the
-        paper; :func:`jaxstyle.labels.phase.global_phase` uses them to ignore single-frame flicker).
       feet: ankle and toe joints; found by name when omitted.
       positions_TxJx3: global joint positions, if already computed.
     """
     feet = feet or FootJoints.find(motion)
-    span = speed_span(rule)
-    upm = contact_units_per_meter(motion, rule, feet) if units_per_meter is None else float(units_per_meter)
+    span = speed_span(config.rule)
+    upm = (contact_units_per_meter(motion, config.rule, feet) if units_per_meter is None
+           else float(units_per_meter))
     pos = kinematics.global_positions(motion) if positions_TxJx3 is None else positions_TxJx3
     joints = list(feet.ankles) + list(feet.toes)
     flags = joint_contacts(pos[:, joints], motion.fps, units_per_meter=upm,
-                           height_threshold=height_threshold, speed_threshold=speed_threshold,
-                           release_speed=release_speed, speed_span=span)
-    flags = clean_runs(flags, max_gap=int(round(max_gap * motion.fps)),
-                       min_length=int(round(min_duration * motion.fps)))
+                           height_threshold=config.height_threshold, speed_threshold=config.speed_threshold,
+                           release_speed=config.release_speed, speed_span=span)
+    flags = clean_runs(flags, max_gap=int(round(config.max_gap * motion.fps)),
+                       min_length=int(round(config.min_duration * motion.fps)))
     return FootContacts(heel=flags[:, :2], toe=flags[:, 2:])

@@ -24,6 +24,7 @@ A clip without movement gets zero sources, amplitude 0, phase 0 and zero feature
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
@@ -32,7 +33,7 @@ from scipy import ndimage, signal
 
 from jaxstyle.errors import MotionDataError
 from jaxstyle.labels import contacts as contacts_lib
-from jaxstyle.labels.sinusoid import F_MAX_HZ, F_MIN_HZ, SinusoidFit, fit_sinusoids, window_frames
+from jaxstyle.labels.sinusoid import SinusoidConfig, SinusoidFit, fit_sinusoids, window_frames
 from jaxstyle.motion import Motion, kinematics, skeleton
 from jaxstyle.motion.character_frame import character_frames, to_local
 
@@ -163,38 +164,47 @@ def default_bones(motion: Motion) -> list[str]:
     return [rh, lh, ra, la]
 
 
-def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
-                 sources: Mapping[str, str] | None = None, foot_source: str = "contact",
-                 height_threshold: float = contacts_lib.HEIGHT_THRESHOLD_M,
-                 speed_threshold: float = contacts_lib.SPEED_THRESHOLD_M_S,
-                 units_per_meter: float | None = None, window: int | None = None,
-                 f_min: float = F_MIN_HZ, f_max: float = F_MAX_HZ, num_freqs: int = 64, refine: int = 2,
-                 max_amplitude: float | None = MAX_AMPLITUDE,
-                 feet: contacts_lib.FootJoints | None = None,
-                 positions_TxJx3: np.ndarray | None = None,
-                 contact_rule: str = contacts_lib.DEFAULT_CONTACT_RULE) -> LocalPhases:
+@dataclass(frozen=True)
+class LocalPhaseConfig:
+    """What :func:`local_phases` labels and how (2022 section 4.1).
+
+    Attributes:
+      bones: joints to label; ``None``: right hand, left hand, right foot (ankle), left foot.
+      sources: per-bone override, ``{"LeftAnkle": "free"}``; ``"contact"`` is only valid for the
+        two foot bones found by name (or given as ``feet``).
+      foot_source: ``"contact"`` (paper default), ``"free"`` (hopping styles), or ``"auto"``: a
+        foot whose contact starts number under half the other foot's (it seldom touches down,
+        e.g. the lifted leg of a hopping style) uses the contact-free source.
+      contacts: the contact test (:class:`jaxstyle.labels.contacts.ContactConfig`; the paper's
+        thresholds; its ``rule``, ``"scaled"`` by default, is the same as the paper's on 100STYLE).
+      sinusoid: the fit (:class:`jaxstyle.labels.sinusoid.SinusoidConfig`), here with the amplitude
+        bound :data:`MAX_AMPLITUDE` (``max_amplitude=None`` fits without one) and, when its
+        ``window`` is ``None``, 0.5 s windows.
+    """
+
+    bones: Sequence[str] | None = None
+    sources: Mapping[str, str] | None = None
+    foot_source: str = "contact"
+    contacts: contacts_lib.ContactConfig = contacts_lib.ContactConfig()
+    sinusoid: SinusoidConfig = SinusoidConfig(max_amplitude=MAX_AMPLITUDE)
+
+
+def local_phases(motion: Motion, config: LocalPhaseConfig = LocalPhaseConfig(), *,
+                 units_per_meter: float | None = None, feet: contacts_lib.FootJoints | None = None,
+                 positions_TxJx3: np.ndarray | None = None) -> LocalPhases:
     """Local phases of the hands and feet of a clip (2022 paper section 4.1).
 
     Args:
       motion: one clip (the PCA of the contact-free source is taken over it, i.e. per style x gait).
-      bones: joints to label; default right hand, left hand, right foot (ankle), left foot.
-      sources: per-bone override, ``{"LeftAnkle": "free"}``; ``"contact"`` is only valid for the
-        two foot bones found by name (or given in ``feet``).
-      foot_source: ``"contact"`` (paper default), ``"free"`` (hopping styles), or ``"auto"``: a
-        foot whose contact starts number under half the other foot's (it seldom touches down,
-        e.g. the lifted leg of a hopping style) uses the contact-free source.
-      height_threshold, speed_threshold: 2022 contact thresholds (m, m/s).
+      config: bones, sources, contact test and sinusoid fit (:class:`LocalPhaseConfig`).
       units_per_meter: file units per metre; when omitted, the contact rule's
         (:func:`jaxstyle.labels.contacts.contact_units_per_meter`), also used for the
         contact-free source's metres.
-      contact_rule: ``"scaled"`` (default: the thresholds for the skeleton's size, speeds over a
-        fixed time span; the same as the paper's rule on 100STYLE) or ``"paper2022"`` (the paper's
-        setting); see :mod:`jaxstyle.labels.contacts`.
-      window, f_min, f_max, num_freqs, refine, max_amplitude: see
-        :func:`jaxstyle.labels.sinusoid.fit_sinusoids`; ``max_amplitude=None`` fits without a bound.
       feet: ankle and toe joints for contacts; found by name when omitted.
       positions_TxJx3: global joint positions, if already computed.
     """
+    bones, sources, foot_source = config.bones, config.sources, config.foot_source
+    contact_rule = config.contacts.rule
     if foot_source not in SOURCES + ("auto",):
         raise ValueError(f"foot_source must be 'contact', 'free' or 'auto', got {foot_source!r}")
     bones = default_bones(motion) if bones is None else list(bones)
@@ -206,8 +216,7 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
     g_pos = kinematics.global_positions(motion) if positions_TxJx3 is None else positions_TxJx3
     if not np.isfinite(g_pos).all():
         raise MotionDataError("joint positions contain NaN or infinity", motion.source)
-    fc = contacts_lib.foot_contacts(motion, height_threshold=height_threshold, speed_threshold=speed_threshold,
-                                    units_per_meter=upm, feet=feet, positions_TxJx3=g_pos, rule=contact_rule)
+    fc = contacts_lib.foot_contacts(motion, config.contacts, units_per_meter=upm, feet=feet, positions_TxJx3=g_pos)
     foot = fc.foot  # (T, 2) left, right
 
     chosen = []
@@ -240,9 +249,10 @@ def local_phases(motion: Motion, *, bones: Sequence[str] | None = None,
 
     normalised = window_normalise(raw, motion.fps, eps=1e-6)
     smooth = butterworth(normalised, motion.fps)
-    fit: SinusoidFit = fit_sinusoids(smooth, motion.fps, window=window or window_frames(motion.fps),
-                                     f_min=f_min, f_max=f_max, num_freqs=num_freqs, refine=refine,
-                                     max_amplitude=max_amplitude)
+    fit_config = config.sinusoid
+    if not fit_config.window:
+        fit_config = dataclasses.replace(fit_config, window=window_frames(motion.fps))
+    fit: SinusoidFit = fit_sinusoids(smooth, motion.fps, fit_config)
     velocity = window_speed(local, motion.fps)
     features = phase_features(fit.amplitude, fit.phase, velocity)
     return LocalPhases(bones=tuple(bones), sources=tuple(chosen), raw_source=raw, source=smooth,

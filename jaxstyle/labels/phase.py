@@ -25,6 +25,7 @@ Behaviour away from steps, by design:
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 
@@ -143,63 +144,69 @@ def step_starts(onset_TxF: np.ndarray, toe_heights_TxF: np.ndarray, min_lift: fl
     return [np.array([f for f, k in kept if k == foot], dtype=np.int64) for foot in range(onset.shape[1])]
 
 
-def footsteps(motion: Motion, *, contact_moment: str = DEFAULT_CONTACT_MOMENT,
-              height_threshold: float | None = None,
-              speed_threshold: float | None = DEFAULT_SPEED_THRESHOLD_M_S,
-              release_speed: float | None = DEFAULT_RELEASE_SPEED_M_S,
-              max_gap: float = DEFAULT_MAX_GAP_S, min_duration: float = DEFAULT_MIN_DURATION_S,
-              min_lift: float = DEFAULT_MIN_LIFT_M, merge_window: float = DEFAULT_MERGE_WINDOW_S,
-              contact_rule: str = contacts_lib.DEFAULT_CONTACT_RULE,
+@dataclasses.dataclass(frozen=True)
+class FootstepConfig:
+    """How footsteps are found for the global phase; the defaults were chosen on the hand-labelled
+    PFNN captures (``experiments/phase_accuracy.py``).
+
+    Attributes:
+      contact_moment: which moment starts a contact: ``"toe"`` (the toe joint touches down, the
+        default), ``"heel"`` (heel strike), ``"first"`` (either) or ``"planted"`` (both; the
+        whole foot is flat). See :meth:`jaxstyle.labels.contacts.FootContacts.moment`.
+      contacts: the contact test (:class:`jaxstyle.labels.contacts.ContactConfig`), here with
+        ``height_threshold`` off (a slow foot is a planted foot, also on a step or a box, and the
+        speed test alone finds every stance on the PFNN captures, whose last steps land on a
+        raised surface); ``speed_threshold`` 0.12 m/s (a contact starts when the joint slows below
+        it); ``release_speed`` 0.4 m/s (the contact lasts until the joint is faster, so a planted
+        foot that slides or jitters, as on the PFNN captures' last steps, stays one contact);
+        ``max_gap`` 0.05 s (a contact broken this long, a glitch in the capture, is one contact);
+        ``min_duration`` 0.1 s (shorter contacts, a toe scuffing a stair edge, are ignored).
+      min_lift: metres; see :func:`step_starts`.
+      merge_window: seconds; contact starts this close are one landing of both feet, one footstep
+        (:func:`step_starts`; at least :data:`MIN_MERGE_FRAMES` frames; 0: only starts in one frame).
+    """
+
+    contact_moment: str = DEFAULT_CONTACT_MOMENT
+    contacts: contacts_lib.ContactConfig = contacts_lib.ContactConfig(
+        height_threshold=None, speed_threshold=DEFAULT_SPEED_THRESHOLD_M_S, release_speed=DEFAULT_RELEASE_SPEED_M_S,
+        max_gap=DEFAULT_MAX_GAP_S, min_duration=DEFAULT_MIN_DURATION_S)
+    min_lift: float = DEFAULT_MIN_LIFT_M
+    merge_window: float = DEFAULT_MERGE_WINDOW_S
+
+
+def footsteps(motion: Motion, config: FootstepConfig = FootstepConfig(), *,
               units_per_meter: float | None = None, feet: contacts_lib.FootJoints | None = None,
               positions_TxJx3: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Frames where footsteps start, ``(left, right)``; the events :func:`global_phase` uses.
 
     Args:
-      contact_moment: which moment starts a contact: ``"toe"`` (the toe joint touches down, the
-        default), ``"heel"`` (heel strike), ``"first"`` (either) or ``"planted"`` (both; the
-        whole foot is flat). See :meth:`jaxstyle.labels.contacts.FootContacts.moment`.
-      height_threshold: ``d_max`` in metres. Off (``None``) by default: a slow foot is a planted
-        foot, also on a step or a box, and the speed test alone finds every stance on the PFNN
-        captures, whose last steps land on a raised surface.
-      speed_threshold: ``v_max`` in m/s (the 2022 paper's 0.15): a contact starts when the joint
-        slows below it.
-      release_speed: m/s; the contact lasts until the joint is faster than this (hysteresis, see
-        :func:`jaxstyle.labels.contacts.joint_contacts`), so a planted foot that slides or jitters, as
-        on the PFNN captures' last steps, stays one contact. ``None`` disables it.
-      max_gap, min_duration: seconds; a contact broken for up to ``max_gap`` (a glitch in the
-        capture) is one contact, and contacts shorter than ``min_duration`` (a toe scuffing a
-        stair edge) are ignored.
-      min_lift: metres; see :func:`step_starts`.
-      merge_window: seconds; contact starts this close are one landing of both feet, one footstep
-        (:func:`step_starts`; at least :data:`MIN_MERGE_FRAMES` frames; 0: only starts in one frame).
-      contact_rule: how thresholds in metres meet the skeleton's units and size and the frame rate:
-        ``"scaled"`` (default) or the paper's ``"paper2022"`` (see :mod:`jaxstyle.labels.contacts`).
+      config: contact moment, contact test, lift and merging (:class:`FootstepConfig`).
       units_per_meter, feet, positions_TxJx3: see :func:`jaxstyle.labels.contacts.foot_contacts`.
     """
     feet = feet or contacts_lib.FootJoints.find(motion)
-    upm = (contacts_lib.contact_units_per_meter(motion, contact_rule, feet) if units_per_meter is None
+    upm = (contacts_lib.contact_units_per_meter(motion, config.contacts.rule, feet) if units_per_meter is None
            else float(units_per_meter))
     pos = kinematics.global_positions(motion) if positions_TxJx3 is None else positions_TxJx3
-    fc = contacts_lib.foot_contacts(motion, height_threshold=height_threshold, speed_threshold=speed_threshold,
-                                    release_speed=release_speed, units_per_meter=upm, max_gap=max_gap,
-                                    min_duration=min_duration, feet=feet, positions_TxJx3=pos, rule=contact_rule)
+    fc = contacts_lib.foot_contacts(motion, config.contacts, units_per_meter=upm, feet=feet, positions_TxJx3=pos)
     toe_heights = pos[:, list(feet.toes), kinematics.UP_AXIS]
-    merge_frames = max(int(round(merge_window * motion.fps)), MIN_MERGE_FRAMES) if merge_window > 0 else 0
-    left, right = step_starts(fc.moment(contact_moment), toe_heights, min_lift * upm, merge_frames)
+    merge = config.merge_window
+    merge_frames = max(int(round(merge * motion.fps)), MIN_MERGE_FRAMES) if merge > 0 else 0
+    left, right = step_starts(fc.moment(config.contact_moment), toe_heights, config.min_lift * upm, merge_frames)
     return left, right
 
 
-def global_phase(motion: Motion, **footstep_kwargs) -> np.ndarray:
+def global_phase(motion: Motion, config: FootstepConfig = FootstepConfig(), *,
+                 positions_TxJx3: np.ndarray | None = None) -> np.ndarray:
     """``(T,)`` PFNN phase in ``[0, 1)``: 0 where right footsteps start, 0.5 where left ones do.
 
-    Keyword arguments go to :func:`footsteps` (contact moment, thresholds); the defaults were
-    chosen on the hand-labelled PFNN captures (``experiments/phase_accuracy.py``).
+    ``config`` says how footsteps are found (:func:`footsteps`); ``positions_TxJx3``: global joint
+    positions, if already computed.
     """
-    left, right = footsteps(motion, **footstep_kwargs)
+    left, right = footsteps(motion, config, positions_TxJx3=positions_TxJx3)
     return phase_from_contact_starts(motion.num_frames, right, left)
 
 
-def label_errors(bvh_path, **global_phase_kwargs) -> np.ndarray:
+def label_errors(bvh_path: str | os.PathLike, config: FootstepConfig = FootstepConfig()) -> np.ndarray:
     """Circular errors (cycles) of :func:`global_phase` against a capture's hand-cleaned labels,
     over its labelled frames only (see :func:`read_phase_labels`)."""
     from jaxstyle.motion.bvh import read_bvh
@@ -208,7 +215,7 @@ def label_errors(bvh_path, **global_phase_kwargs) -> np.ndarray:
     motion = read_bvh(bvh_path)
     if motion.num_frames != len(labels):
         raise ValueError(f"{bvh_path}: {motion.num_frames} frames but {len(labels)} phase labels")
-    return circular_distance(global_phase(motion, **global_phase_kwargs)[labelled], labels[labelled])
+    return circular_distance(global_phase(motion, config)[labelled], labels[labelled])
 
 
 def read_footsteps(path: str | os.PathLike) -> np.ndarray:

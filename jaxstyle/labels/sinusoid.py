@@ -29,6 +29,7 @@ reference and ``benchmarks/phases.py`` compares speeds.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import NamedTuple
 
@@ -213,21 +214,37 @@ def sliding_windows(signal_TxB: np.ndarray, window: int) -> tuple[np.ndarray, np
     return windows, mask
 
 
-def fit_sinusoids(signal_TxB: np.ndarray, fps: float, *, window: int | None = None,
-                  f_min: float = F_MIN_HZ, f_max: float = F_MAX_HZ, num_freqs: int = 64,
-                  max_amplitude: float | None = None, refine: int = 2, chunk: int = 4096) -> SinusoidFit:
-    """Fit a sinusoid around every frame of each column of ``signal_TxB`` (2022 section 4.1.4).
+@dataclasses.dataclass(frozen=True)
+class SinusoidConfig:
+    """Settings of the windowed sinusoid fit (2022 section 4.1.4).
 
-    Args:
-      signal_TxB: source functions, frames x signals.
-      fps: frame rate; times are in seconds so ``F`` is in Hz.
-      window: samples per window (odd); 31 at 60 fps by default (:func:`window_frames`).
+    Attributes:
+      window: samples per window (odd); ``None``: 31 at 60 fps (:func:`window_frames`).
       f_min, f_max: frequency range in Hz (paper: 0.25-4).
       num_freqs: grid size before refinement.
       max_amplitude: optional bound on ``A`` (see :func:`fit_windows`); ``None`` leaves it free.
       refine: parabolic refinement steps.
       chunk: frames per jitted call (bounds memory; every call has the same shape, so it compiles once).
     """
+
+    window: int | None = None
+    f_min: float = F_MIN_HZ
+    f_max: float = F_MAX_HZ
+    num_freqs: int = 64
+    max_amplitude: float | None = None
+    refine: int = 2
+    chunk: int = 4096
+
+
+def fit_sinusoids(signal_TxB: np.ndarray, fps: float, config: SinusoidConfig = SinusoidConfig()) -> SinusoidFit:
+    """Fit a sinusoid around every frame of each column of ``signal_TxB`` (2022 section 4.1.4).
+
+    Args:
+      signal_TxB: source functions, frames x signals.
+      fps: frame rate; times are in seconds so ``F`` is in Hz.
+      config: window, frequency grid, amplitude bound, refinement and chunk (:class:`SinusoidConfig`).
+    """
+    window, f_min, f_max, max_amplitude = config.window, config.f_min, config.f_max, config.max_amplitude
     sig = np.asarray(signal_TxB, dtype=np.float32)
     squeeze = sig.ndim == 1
     if squeeze:
@@ -243,14 +260,14 @@ def fit_sinusoids(signal_TxB: np.ndarray, fps: float, *, window: int | None = No
         raise ValueError(f"window must be an odd number of frames >= 3, got {window}")
     half = window // 2
     tau = jnp.asarray((np.arange(window) - half) / fps, dtype=jnp.float32)
-    freqs = jnp.asarray(np.linspace(f_min, f_max, num_freqs), dtype=jnp.float32)
+    freqs = jnp.asarray(np.linspace(f_min, f_max, config.num_freqs), dtype=jnp.float32)
     if max_amplitude is not None and not max_amplitude > 0:
         raise ValueError(f"max_amplitude must be positive, got {max_amplitude}")
     a_max = jnp.asarray(np.inf if max_amplitude is None else max_amplitude, dtype=jnp.float32)
     num_frames = sig.shape[0]
     # Pad every call to a power-of-two size (at least 256, at most ``chunk``) so clips of
     # different lengths share a handful of compiled shapes.
-    chunk = min(max(256, 1 << max(num_frames - 1, 1).bit_length()), max(chunk, 256))
+    chunk = min(max(256, 1 << max(num_frames - 1, 1).bit_length()), max(config.chunk, 256))
     outs = []
     for start in range(0, num_frames, chunk):
         lo, hi = max(start - half, 0), min(start + chunk + half, num_frames)
@@ -262,7 +279,7 @@ def fit_sinusoids(signal_TxB: np.ndarray, fps: float, *, window: int | None = No
         if n < chunk:  # pad the last chunk to the common shape (padded rows are discarded)
             windows = np.concatenate([windows, np.zeros((chunk - n,) + windows.shape[1:], windows.dtype)])
             mask = np.concatenate([mask, np.ones((chunk - n, window), mask.dtype)])
-        res = fit_windows(jnp.asarray(windows), jnp.asarray(mask), tau, freqs, a_max, refine=refine)
+        res = fit_windows(jnp.asarray(windows), jnp.asarray(mask), tau, freqs, a_max, refine=config.refine)
         outs.append([np.asarray(r)[:n] for r in res])
     amp, freq, phase, offset = (np.concatenate([o[i] for o in outs]) for i in range(4))
     if squeeze:

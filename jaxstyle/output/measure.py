@@ -18,7 +18,13 @@ import numpy as np
 
 from jaxstyle.control import paths
 from jaxstyle.control.model import Frames
-from jaxstyle.labels.contacts import FootJoints, body_units_per_meter, estimate_units_per_meter
+from jaxstyle.labels.contacts import (
+    ContactConfig,
+    FootJoints,
+    body_units_per_meter,
+    estimate_units_per_meter,
+    foot_contacts,
+)
 from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.output import export, footlock, metrics
@@ -58,12 +64,11 @@ def pinned_feet(motion: Motion, rollout) -> Motion:
     labels are on (:func:`jaxstyle.output.footik.fix_foot_sliding`, 5 blend frames), or, for a model
     without contact outputs, while within 1 cm of the floor for at least 0.1 s; no speed test,
     no reach limit."""
-    from jaxstyle.labels.contacts import foot_contacts
     from jaxstyle.output import footik
 
     contacts = export.network_contacts(rollout, motion.num_joints)
     if contacts is None:
-        c = foot_contacts(motion, speed_threshold=None, min_duration=0.1)
+        c = foot_contacts(motion, ContactConfig(speed_threshold=None, min_duration=0.1))
         contacts = np.concatenate([c.heel, c.toe], axis=1)
     return footik.fix_foot_sliding(motion, contacts, blend_frames=5, pin_toes=True)
 
