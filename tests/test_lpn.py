@@ -337,8 +337,9 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
 
     gen0 = params["style"]["generator"]
     one, _, losses = jax.jit(lambda g: train_lpn.scan.train_scan(
-        loss_fn, g, optax.adam(1e-3).init(g), (jnp.asarray(batches[1]), jnp.asarray(clips[1])),
-        jnp.asarray(mask[1]), keys, learning_rate=1e-3))(gen0)
+        loss_fn, g, optax.adam(1e-3).init(g),
+        train_lpn.scan.Steps((jnp.asarray(batches[1]), jnp.asarray(clips[1])), jnp.asarray(mask[1]), keys),
+        optimizer=1e-3))(gen0)
     np.testing.assert_allclose(per_step[1, 1], losses, rtol=2e-5, atol=1e-6)
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a[1, 1], b, rtol=1e-4, atol=1e-6), gens, one)
     changed = jax.tree.map(lambda a, b: float(jnp.abs(a[0, 0] - b).max()), gens, gen0)

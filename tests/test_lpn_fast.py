@@ -39,8 +39,8 @@ def _reference_steps(params, config, data, steps):
                                     bones, jnp.float32(config.bone_loss_weight))
 
     opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
-    out = jax.jit(lambda p, o: scan.train_scan(loss_fn, p, o, (b, s, c), jnp.ones(steps, bool), keys,
-                                               learning_rate=config.learning_rate, has_aux=True))(params, opt)
+    out = jax.jit(lambda p, o: scan.train_scan(loss_fn, p, o, scan.Steps((b, s, c), jnp.ones(steps, bool), keys),
+                                               optimizer=config.learning_rate, has_aux=True))(params, opt)
     return out[0], np.asarray(out[2][0])
 
 
@@ -90,8 +90,9 @@ def test_train_one_epoch_equals_the_reference_steps():
                                     jnp.float32(1.0))
 
     opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
-    ref, _, _ = scan.train_scan(loss_fn, init, opt, (jnp.asarray(batches), jnp.asarray(styles), jnp.asarray(clips)),
-                                jnp.ones(len(batches), bool), keys, learning_rate=config.learning_rate, has_aux=True)
+    steps = scan.Steps((jnp.asarray(batches), jnp.asarray(styles), jnp.asarray(clips)), jnp.ones(len(batches), bool),
+                       keys)
+    ref, _, _ = scan.train_scan(loss_fn, init, opt, steps, optimizer=config.learning_rate, has_aux=True)
     assert len(batches) > 5
     assert _max_diff(state["params"], ref) <= 1e-6
 

@@ -64,7 +64,8 @@ def _loop(frozen, idx_T, mask_T, keys_T, rate, w, hparams):
 def test_grid_equals_a_loop_of_single_runs_and_leaves_frozen_alone():
     frozen, batches, mask, rates, keys, w0, hp = _problem()
     before = jax.tree.map(np.array, frozen)
-    w, losses = scan.grid_sweep(LinearLoss(), w0, frozen, batches, mask, keys, rates, learning_rate=LR, hparams=hp)
+    w, losses = scan.grid_sweep(LinearLoss(), w0, frozen, scan.Steps(batches, mask, keys), rates, optimizer=LR,
+                                hparams=hp)
     assert w.shape == (2, 2, D) and losses.shape == (2, 2, batches.shape[1])
     for s in range(2):
         for r in range(2):
@@ -72,8 +73,8 @@ def test_grid_equals_a_loop_of_single_runs_and_leaves_frozen_alone():
             np.testing.assert_allclose(w[s, r], want_w, rtol=1e-5, atol=1e-5)
             np.testing.assert_allclose(losses[s, r], want_losses, rtol=1e-5, atol=1e-5)
             one, _, one_losses = scan.run_pair(LinearLoss(), w0[s, r], optax.adam(LR).init(w0[s, r]), frozen,
-                                               jnp.asarray(batches[s]), jnp.asarray(mask[s]), keys[s, r],
-                                               jnp.float32(rates[r]), hp, learning_rate=LR)
+                                               scan.Steps(jnp.asarray(batches[s]), jnp.asarray(mask[s]), keys[s, r]),
+                                               jnp.float32(rates[r]), hp, optimizer=LR)
             np.testing.assert_allclose(w[s, r], one, rtol=1e-5, atol=1e-5)
             np.testing.assert_allclose(losses[s, r], one_losses, rtol=1e-5, atol=1e-5)
     # the frozen tree got no update (its values are unchanged and the result is that of training
@@ -84,8 +85,9 @@ def test_grid_equals_a_loop_of_single_runs_and_leaves_frozen_alone():
                                                  hp))(frozen["b"])) != 0.0
     both = scan.run_pair(
         lambda t, fz, idx, k, r, h: LinearLoss()(t[0], {**fz, "b": t[1]}, idx, k, r, h), (w0[0, 0], frozen["b"]),
-        optax.adam(LR).init((w0[0, 0], frozen["b"])), frozen, jnp.asarray(batches[0]), jnp.asarray(mask[0]),
-        keys[0, 0], jnp.float32(rates[0]), hp, learning_rate=LR)[0]
+        optax.adam(LR).init((w0[0, 0], frozen["b"])), frozen,
+        scan.Steps(jnp.asarray(batches[0]), jnp.asarray(mask[0]), keys[0, 0]), jnp.float32(rates[0]), hp,
+        optimizer=LR)[0]
     assert np.abs(np.asarray(both[0]) - np.asarray(w[0, 0])).max() > 1e-4
     # the starting tree passed in is not consumed (the driver trains a copy)
     assert np.isfinite(np.asarray(w0)).all()
@@ -93,20 +95,22 @@ def test_grid_equals_a_loop_of_single_runs_and_leaves_frozen_alone():
 
 def test_masked_steps_change_nothing_and_chunks_give_the_same_result():
     frozen, batches, mask, rates, keys, w0, hp = _problem(1)
-    w, losses = scan.grid_sweep(LinearLoss(), w0, frozen, batches, mask, keys, rates, learning_rate=LR, hparams=hp)
+    w, losses = scan.grid_sweep(LinearLoss(), w0, frozen, scan.Steps(batches, mask, keys), rates, optimizer=LR,
+                                hparams=hp)
     real = int(mask[1].sum())
     assert real < batches.shape[1] and np.isnan(np.asarray(losses[1, :, real:])).all()
     assert np.isfinite(np.asarray(losses[1, :, :real])).all()
-    short, _ = scan.grid_sweep(LinearLoss(), w0[1:], frozen, batches[1:, :real], mask[1:, :real],
-                               keys[1:, :, :real], rates, learning_rate=LR, hparams=hp)
+    short, _ = scan.grid_sweep(LinearLoss(), w0[1:], frozen,
+                               scan.Steps(batches[1:, :real], mask[1:, :real], keys[1:, :, :real]), rates,
+                               optimizer=LR, hparams=hp)
     np.testing.assert_allclose(w[1], short[0], rtol=1e-5, atol=1e-6)
-    chunked, chunked_losses = scan.grid_sweep(LinearLoss(), w0, frozen, batches, mask, keys, rates,
-                                              learning_rate=LR, hparams=hp, chunk_steps=4)
+    chunked, chunked_losses = scan.grid_sweep(LinearLoss(), w0, frozen, scan.Steps(batches, mask, keys), rates,
+                                              optimizer=LR, hparams=hp, run=scan.GridRun(chunk_steps=4))
     np.testing.assert_allclose(chunked, w, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(chunked_losses, losses, rtol=1e-5, atol=1e-6)
     # the rate is traced: another rate, the same compiled program, another result
-    other, _ = scan.grid_sweep(LinearLoss(), w0, frozen, batches, mask, keys, (0.0, 0.4), learning_rate=LR,
-                               hparams=hp)
+    other, _ = scan.grid_sweep(LinearLoss(), w0, frozen, scan.Steps(batches, mask, keys), (0.0, 0.4),
+                               optimizer=LR, hparams=hp)
     assert np.abs(np.asarray(other[:, 0] - w[:, 0])).max() > 1e-4
     np.testing.assert_allclose(other[:, 1], w[:, 1], rtol=1e-6)
 
@@ -135,7 +139,7 @@ def test_fit_stops_on_a_non_finite_loss():
         return 2, lambda state, a, b: (state, np.full(b - a, np.nan))
 
     with pytest.raises(FloatingPointError, match="epoch 1"):
-        scan.fit({"epoch": jnp.zeros((), jnp.int32)}, 2, plan_epoch, progress=False)
+        scan.fit({"epoch": jnp.zeros((), jnp.int32)}, 2, plan_epoch, options=scan.FitOptions(progress=False))
 
 
 def test_default_rates_are_the_2018_ones():

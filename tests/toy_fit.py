@@ -11,14 +11,15 @@ import optax
 from jaxstyle.train import scan
 
 
-def toy_fit(directory, run_config, *, poison_epoch: int | None = None, **fit_kwargs) -> dict:
+def toy_fit(directory, run_config, *, poison_epoch: int | None = None, end_epoch=None, **options) -> dict:
     """Run (or resume) the toy run in ``directory``; from ``poison_epoch`` on, the weights turn
-    NaN while the reported loss stays finite. ``fit_kwargs`` go to :func:`scan.fit`."""
+    NaN while the reported loss stays finite. ``end_epoch`` goes to :func:`scan.fit`, ``options``
+    to its :class:`scan.FitOptions` (3 steps per chunk, no progress bar unless given)."""
     X = jnp.asarray(np.random.default_rng(0).normal(size=(12, 3)).astype(np.float32))
     Y = X @ jnp.array([1.0, -2.0, 0.5])
     opt = optax.adam(0.1)
     loss = lambda w, idx, k: jnp.mean((X[idx] @ w - Y[idx]) ** 2)  # noqa: E731
-    run = jax.jit(lambda w, o, idx, keys: scan.train_scan(loss, w, o, idx, jnp.ones(len(idx), bool), keys,
+    run = jax.jit(lambda w, o, idx, keys: scan.train_scan(loss, w, o, scan.Steps(idx, jnp.ones(len(idx), bool), keys),
                                                           optimizer=opt))
 
     def plan_epoch(epoch):
@@ -35,5 +36,6 @@ def toy_fit(directory, run_config, *, poison_epoch: int | None = None, **fit_kwa
 
     w = jnp.zeros(3)
     state = {"w": w, "opt_state": opt.init(w), "epoch": jnp.zeros((), jnp.int32)}
-    return scan.fit(state, 3, plan_epoch, directory=directory, run_config=run_config, log_every=3, progress=False,
-                    **fit_kwargs)
+    options = {"log_every": 3, "progress": False, **options}
+    return scan.fit(state, 3, plan_epoch, directory=directory, run_config=run_config, end_epoch=end_epoch,
+                    options=scan.FitOptions(**options))

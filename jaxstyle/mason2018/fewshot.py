@@ -145,8 +145,8 @@ def finetune_one(params: dict, x, y, phase, batches_TxB, mask_T, rate: float, ke
     adapter, keys = _init_pair(config, key, len(batches_TxB))
     adapter, _, losses = scan.run_pair(
         _loss_of(config), adapter, optax.adam(config.learning_rate).init(adapter), frozen_inputs(params, x, y, phase),
-        jnp.asarray(batches_TxB), jnp.asarray(mask_T), keys, jnp.float32(rate),
-        {"lambda_s": jnp.float32(config.lambda_s)}, learning_rate=config.learning_rate)
+        scan.Steps(jnp.asarray(batches_TxB), jnp.asarray(mask_T), keys), jnp.float32(rate),
+        {"lambda_s": jnp.float32(config.lambda_s)}, optimizer=config.learning_rate)
     return adapter, losses
 
 
@@ -179,7 +179,7 @@ def adapter_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: Sw
         jnp.arange(num_styles), jnp.arange(num_rates))
     adapters, step_keys = jax.vmap(jax.vmap(lambda k: _init_pair(config, k, num_steps)))(keys)
     return AdapterSweep(*scan.grid_sweep(
-        _loss_of(config), adapters, frozen_inputs(params, x, y, phase), batches_SxTxB, mask_SxT, step_keys,
-        jnp.asarray(config.rates, jnp.float32), learning_rate=config.learning_rate,
-        hparams={"lambda_s": jnp.float32(config.lambda_s)}, chunk_steps=chunk_steps, shard=shard, progress=progress,
-        desc=f"sweep {num_styles} styles x {num_rates} rates"))
+        _loss_of(config), adapters, frozen_inputs(params, x, y, phase), scan.Steps(batches_SxTxB, mask_SxT, step_keys),
+        jnp.asarray(config.rates, jnp.float32), optimizer=config.learning_rate,
+        hparams={"lambda_s": jnp.float32(config.lambda_s)},
+        run=scan.GridRun(chunk_steps, shard, progress, f"sweep {num_styles} styles x {num_rates} rates")))

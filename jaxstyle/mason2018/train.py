@@ -126,7 +126,8 @@ def _make_chunk_fn(config: TrainConfig, optimiser):
     def run(trainable, opt_state, x, y, phase, batches, styles, key):
         keys = jax.random.split(key, batches.shape[0])
         return scan.train_scan(lambda t, inputs, k: objective(t, inputs, k, x, y, phase), trainable, opt_state,
-                               (batches, styles), jnp.ones(batches.shape[0], bool), keys, optimizer=optimiser)
+                               scan.Steps((batches, styles), jnp.ones(batches.shape[0], bool), keys),
+                               optimizer=optimiser)
 
     return run
 
@@ -206,8 +207,8 @@ def train(data: TrainData, config: TrainConfig, directory: str | Path | None = N
 
     return scan.fit(init_state(jax.random.PRNGKey(config.seed), config, len(data.styles)), config.epochs,
                     plan_epoch, directory=directory, run_config={"train": config, "styles": list(data.styles)},
-                    log_every=config.log_every, end_epoch=end_epoch, progress=progress,
-                    stop_after_epochs=stop_after_epochs)
+                    end_epoch=end_epoch, options=scan.FitOptions(log_every=config.log_every, progress=progress,
+                                                                  stop_after_epochs=stop_after_epochs))
 
 
 def load_trained(config: TrainConfig, styles, directory: str | Path) -> dict:
@@ -245,7 +246,8 @@ def finetune_adapter(params: dict, adapter: dict, data: TrainData, style: int, c
                               for _ in range(config.epochs)])
     keys = jax.random.split(jax.random.PRNGKey(config.seed), len(batches))
     adapter, _, _ = scan.run_pair(fewshot.AdapterLoss(), adapter, optax.adam(config.learning_rate).init(adapter),
-                                  fewshot.frozen_inputs(params, data.x, data.y, data.phase), jnp.asarray(batches),
-                                  jnp.ones(len(batches), bool), keys, jnp.float32(config.dropout_rate),
-                                  {"lambda_s": jnp.float32(config.lambda_s)}, learning_rate=config.learning_rate)
+                                  fewshot.frozen_inputs(params, data.x, data.y, data.phase),
+                                  scan.Steps(jnp.asarray(batches), jnp.ones(len(batches), bool), keys),
+                                  jnp.float32(config.dropout_rate), {"lambda_s": jnp.float32(config.lambda_s)},
+                                  optimizer=config.learning_rate)
     return adapter

@@ -116,10 +116,10 @@ def finetune_film_sweep(params: dict, config: StyleModelConfig, data: StyleData,
     gens = jax.tree.map(lambda v: jnp.broadcast_to(v, (num_styles, num_rates) + v.shape),
                         params["style"]["generator"])
     gens, per_step = scan.grid_sweep(
-        GeneratorLoss(config, StaticBones(data.bones)), gens, frozen, (batches, clips), mask, keys,
-        jnp.asarray(finetune.rates, jnp.float32), learning_rate=finetune.learning_rate,
-        hparams={"weight": jnp.float32(finetune.bone_loss_weight)}, chunk_steps=chunk_steps, shard=shard,
-        progress=progress, desc=f"FiLM fine-tuning {num_styles} styles x {num_rates} rates")
+        GeneratorLoss(config, StaticBones(data.bones)), gens, frozen, scan.Steps((batches, clips), mask, keys),
+        jnp.asarray(finetune.rates, jnp.float32), optimizer=finetune.learning_rate,
+        hparams={"weight": jnp.float32(finetune.bone_loss_weight)},
+        run=scan.GridRun(chunk_steps, shard, progress, f"FiLM fine-tuning {num_styles} styles x {num_rates} rates"))
     return FilmSweep(gens, np.asarray(per_step))
 
 

@@ -207,8 +207,8 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
 
     state = scan.fit(init_state(jax.random.PRNGKey(config.seed), config), config.epochs, plan_epoch,
                      directory=directory, run_config=_run_config(config, data.styles, compute_dtype),
-                     log_every=config.log_every, end_epoch=end_epoch, progress=progress,
-                     stop_after_epochs=stop_after_epochs)
+                     end_epoch=end_epoch, options=scan.FitOptions(log_every=config.log_every, progress=progress,
+                                                                   stop_after_epochs=stop_after_epochs))
     if jax.process_count() > 1:  # replicated over several processes: this process's copy, for what follows
         state = jax.tree.map(jnp.asarray, shard.gather(state))
     return state

@@ -1,7 +1,7 @@
 """The training drivers both papers share.
 
 * :func:`train_scan`: Adam (or any optax) steps as one ``lax.scan``, gradients for a trainable tree
-  only, with a mask for padded steps.
+  only, with a mask for padded steps (:class:`Steps`: inputs, mask and keys).
 * :func:`grid_sweep`: the (set, rate) grid of fine-tuning runs as ONE compiled program, ``jit`` of
   ``vmap`` over sets of ``vmap`` over rates of :func:`train_scan`; the frozen tree is broadcast
   (``in_axes=None``, never copied per pair), the rate is a traced array (not a Python branch), the
@@ -26,10 +26,11 @@ equal loss object reuses the compiled program.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -92,25 +93,39 @@ def sweep_batches(rows_per_style: Sequence[np.ndarray], epochs: int, batch_size:
     return batches, mask
 
 
-def _optimiser(learning_rate: float | None, optimizer: optax.GradientTransformation | None):
-    if optimizer is not None:
+class Steps(NamedTuple):
+    """The steps of a training scan, step axis ``T`` last of the leading axes: ``inputs``, a tree of
+    per-step inputs (e.g. batch row indices); ``mask``, real steps (a masked step changes nothing
+    and reports NaN); ``keys``, one raw PRNG key per step."""
+
+    inputs: Any
+    mask: Any
+    keys: Any
+
+
+Optimizer = float | optax.GradientTransformation
+"""A learning rate for ``optax.adam``, or an optax optimizer (reuse the same object to reuse a
+compiled program: it is a static argument)."""
+
+
+def _optimiser(optimizer: Optimizer) -> optax.GradientTransformation:
+    if isinstance(optimizer, optax.GradientTransformation):
         return optimizer
-    if learning_rate is None:
-        raise TypeError("pass learning_rate (Adam) or an optax optimizer")
-    return optax.adam(learning_rate)
+    if isinstance(optimizer, (int, float)) and not isinstance(optimizer, bool):
+        return optax.adam(float(optimizer))
+    raise TypeError(f"optimizer must be a learning rate (Adam) or an optax optimizer, got {optimizer!r}")
 
 
-def train_scan(loss_fn, trainable, opt_state, inputs_T, mask_T, keys_T, *, learning_rate: float | None = None,
-               optimizer: optax.GradientTransformation | None = None, has_aux: bool = False):
+def train_scan(loss_fn, trainable, opt_state, steps: Steps, *, optimizer: Optimizer, has_aux: bool = False):
     """Optimiser steps as one ``lax.scan``: step ``t`` takes the gradient of
-    ``loss_fn(trainable, inputs_T[t], keys_T[t])`` with respect to ``trainable`` alone (whatever
-    else the loss uses is closed over, i.e. frozen); masked steps (``mask_T[t]`` false) change
-    nothing. The optimiser is ``optax.adam(learning_rate)`` unless ``optimizer`` is given.
+    ``loss_fn(trainable, steps.inputs[t], steps.keys[t])`` with respect to ``trainable`` alone
+    (whatever else the loss uses is closed over, i.e. frozen); masked steps (``steps.mask[t]``
+    false) change nothing. ``optimizer``: a learning rate for ``optax.adam`` or an optax optimizer.
 
     Returns the trained tree, the optimiser state and per-step losses (NaN when masked); with
     ``has_aux`` the loss returns ``(value, aux)`` and the last result is ``(losses, aux_T)``, the
     aux tree NaN on masked steps too."""
-    optimiser = _optimiser(learning_rate, optimizer)
+    optimiser = _optimiser(optimizer)
 
     def step(carry, inputs):
         a, opt = carry
@@ -122,7 +137,7 @@ def train_scan(loss_fn, trainable, opt_state, inputs_T, mask_T, keys_T, *, learn
         hide = lambda v: jnp.where(real, v, jnp.nan)  # noqa: E731
         return (jax.tree.map(keep, new_a, a), jax.tree.map(keep, new_opt, opt)), jax.tree.map(hide, value)
 
-    (trainable, opt_state), losses = jax.lax.scan(step, (trainable, opt_state), (inputs_T, mask_T, keys_T))
+    (trainable, opt_state), losses = jax.lax.scan(step, (trainable, opt_state), tuple(steps))
     return trainable, opt_state, losses
 
 
@@ -138,35 +153,31 @@ def _prepared(loss_fn, frozen):
     return frozen if prepare is None else prepare(frozen)
 
 
-def _pair_scan(loss_fn, trainable, opt_state, frozen, inputs_T, mask_T, keys_T, rate, hparams, learning_rate,
-               optimizer):
+def _pair_scan(loss_fn, trainable, opt_state, frozen, steps: Steps, rate, hparams, optimizer):
     def loss(t, step_inputs, key):
         return loss_fn(t, frozen, step_inputs, key, rate, hparams)
 
-    return train_scan(loss, trainable, opt_state, inputs_T, mask_T, keys_T, learning_rate=learning_rate,
-                      optimizer=optimizer)
+    return train_scan(loss, trainable, opt_state, steps, optimizer=optimizer)
 
 
-@functools.partial(jax.jit, static_argnames=("loss_fn", "learning_rate", "optimizer"))
-def run_pair(loss_fn, trainable, opt_state, frozen, inputs_T, mask_T, keys_T, rate, hparams=None, *,
-             learning_rate: float | None = None, optimizer: optax.GradientTransformation | None = None):
-    """One cell of :func:`grid_sweep` (one set, one rate) without the vmaps, compiled: the steps of
-    ``inputs_T`` (a tree of ``(T, ...)`` arrays), ``mask_T (T,)`` and ``keys_T (T, 2)`` from
-    ``trainable`` and ``opt_state``. Returns ``(trainable, opt_state, losses_T)``."""
-    return _pair_scan(loss_fn, trainable, opt_state, _prepared(loss_fn, frozen), inputs_T, mask_T, keys_T, rate,
-                      hparams, learning_rate, optimizer)
+@functools.partial(jax.jit, static_argnames=("loss_fn", "optimizer"))
+def run_pair(loss_fn, trainable, opt_state, frozen, steps: Steps, rate, hparams=None, *, optimizer: Optimizer):
+    """One cell of :func:`grid_sweep` (one set, one rate) without the vmaps, compiled: the steps
+    (``inputs`` a tree of ``(T, ...)`` arrays, ``mask (T,)``, ``keys (T, 2)``) from ``trainable`` and
+    ``opt_state``. Returns ``(trainable, opt_state, losses_T)``."""
+    return _pair_scan(loss_fn, trainable, opt_state, _prepared(loss_fn, frozen), Steps(*steps), rate, hparams,
+                      optimizer)
 
 
-@functools.partial(jax.jit, static_argnames=("loss_fn", "learning_rate", "optimizer"),
-                   donate_argnames=("trainable_GxR", "opt_GxR"))
+@functools.partial(jax.jit, static_argnames=("loss_fn", "optimizer"), donate_argnames=("trainable_GxR", "opt_GxR"))
 def _grid_chunk(loss_fn, trainable_GxR, opt_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT, rates_R, hparams, *,
-                learning_rate, optimizer):
+                optimizer):
     """One chunk of steps of every (set, rate) cell: vmap over sets of vmap over rates of the
     per-cell scan; ``frozen`` and ``hparams`` broadcast (``in_axes=None``) to every cell."""
     frozen = _prepared(loss_fn, frozen)
 
     def cell(t, o, k, r, inputs, mask, fz, hp):
-        return _pair_scan(loss_fn, t, o, fz, inputs, mask, k, r, hp, learning_rate, optimizer)
+        return _pair_scan(loss_fn, t, o, fz, Steps(inputs, mask, k), r, hp, optimizer)
 
     over_rates = jax.vmap(cell, in_axes=(0, 0, 0, 0, None, None, None, None))
     over_sets = jax.vmap(over_rates, in_axes=(0, 0, 0, None, 0, 0, None, None))
@@ -185,37 +196,50 @@ def _pad_axis(v, axis: int, n: int, *, edge: bool = False):
     return jnp.pad(v, widths) if isinstance(v, jax.Array) else np.pad(np.asarray(v), widths)
 
 
-def grid_sweep(loss_fn, trainable_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT, rates_R, *,
-               learning_rate: float | None = None, optimizer: optax.GradientTransformation | None = None,
-               hparams: Any = None, opt_state_GxR: Any = None, chunk_steps: int | None = None, shard: bool = False,
-               progress: bool = False, desc: str | None = None) -> tuple[Any, jax.Array]:
+@dataclasses.dataclass(frozen=True)
+class GridRun:
+    """How :func:`grid_sweep` runs (none of it changes the result).
+
+    Attributes:
+      chunk_steps: run the steps in chunks of that many (one compiled program called
+        ``ceil(T / chunk_steps)`` times, the last chunk padded with masked steps), so ``progress``
+        can move a bar between chunks; ``None``: one call.
+      shard: spread the set axis over all devices (a 1-D mesh, ``frozen`` replicated), padded
+        with fully masked sets to a multiple of the device count. Under ``jax.distributed`` the
+        devices of every process take part (every process calls with the same arguments) and
+        every process gets the whole result back.
+      progress, desc: a progress bar (moving between chunks) and its title.
+    """
+
+    chunk_steps: int | None = None
+    shard: bool = False
+    progress: bool = False
+    desc: str | None = None
+
+
+def grid_sweep(loss_fn, trainable_GxR, frozen, steps: Steps, rates_R, *, optimizer: Optimizer, hparams: Any = None,
+               run: GridRun = GridRun()) -> tuple[Any, jax.Array]:
     """Train every (set, rate) cell of a grid in one compiled program.
 
     Args:
       loss_fn: ``loss_fn(trainable, frozen, step_inputs, key, rate, hparams) -> scalar``, hashable
         (see the module docstring), optionally with ``prepare(frozen)``.
       trainable_GxR: the tree trained, leaves stacked ``(G, R, ...)`` (one start per cell; not
-        modified: the driver trains a copy).
+        modified: the driver trains a copy), each cell with a fresh optimiser state.
       frozen: a tree the loss reads and no step changes (network, data), broadcast to every cell.
-      inputs_GxT: a tree of ``(G, T, ...)`` per-set step inputs (e.g. batch row indices).
-      mask_GxT: ``(G, T)`` real steps; masked steps change nothing and report NaN.
-      keys_GxRxT: ``(G, R, T, 2)`` one raw PRNG key per cell and step.
+      steps: ``inputs``, a tree of ``(G, T, ...)`` per-set step inputs (e.g. batch row indices);
+        ``mask``, ``(G, T)`` real steps (masked steps change nothing and report NaN); ``keys``,
+        ``(G, R, T, 2)`` one raw PRNG key per cell and step.
       rates_R: ``(R,)`` the per-rate hyperparameter (or a tree of ``(R, ...)`` arrays), traced.
-      learning_rate / optimizer: ``optax.adam(learning_rate)``, or an optax optimizer (reuse the
-        same object to reuse the compiled program).
+      optimizer: a learning rate for ``optax.adam``, or an optax optimizer (reuse the same object
+        to reuse the compiled program).
       hparams: a tree of arrays shared by all cells (traced: changing a value does not recompile).
-      opt_state_GxR: the optimiser state per cell; default a fresh one.
-      chunk_steps: run the steps in chunks of that many (one compiled program called
-        ``ceil(T / chunk_steps)`` times, the last chunk padded with masked steps), so ``progress``
-        can move a bar between chunks; same result as one call.
-      progress / desc: a progress bar (moving between chunks) and its title.
-      shard: spread the set axis over all devices (a 1-D mesh, ``frozen`` replicated), padded
-        with fully masked sets to a multiple of the device count; same result as one device.
-        Under ``jax.distributed`` the devices of every process take part (every process calls
-        this with the same arguments) and every process gets the whole result back.
+      run: chunks, sharding and progress (:class:`GridRun`).
 
     Returns the trained tree ``(G, R, ...)`` and per-step losses ``(G, R, T)``.
     """
+    inputs_GxT, mask_GxT, keys_GxRxT = steps
+    chunk_steps, shard, progress, desc = run.chunk_steps, run.shard, run.progress, run.desc
     if isinstance(rates_R, (tuple, list)):
         rates_R = jnp.asarray(rates_R, jnp.float32)
     mask = np.asarray(mask_GxT, bool)
@@ -233,11 +257,7 @@ def grid_sweep(loss_fn, trainable_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT,
     keys = _pad_axis(_pad_axis(jnp.asarray(keys_GxRxT), 0, padded - num_sets), 2, total - num_steps)
     trainable = jax.tree.map(lambda v: _pad_axis(jnp.array(v, copy=True), 0, padded - num_sets, edge=True),
                              trainable_GxR)
-    if opt_state_GxR is None:
-        opt = jax.vmap(jax.vmap(_optimiser(learning_rate, optimizer).init))(trainable)
-    else:
-        opt = jax.tree.map(lambda v: _pad_axis(jnp.array(v, copy=True), 0, padded - num_sets, edge=True),
-                           opt_state_GxR)
+    opt = jax.vmap(jax.vmap(_optimiser(optimizer).init))(trainable)
     inputs, mask = jax.tree.map(jnp.asarray, inputs), jnp.asarray(mask)
     if shard:
         from jax.sharding import Mesh, NamedSharding, PartitionSpec
@@ -255,7 +275,7 @@ def grid_sweep(loss_fn, trainable_GxR, frozen, inputs_GxT, mask_GxT, keys_GxRxT,
         b = a + chunk
         trainable, opt, chunk_losses = _grid_chunk(
             loss_fn, trainable, opt, frozen, jax.tree.map(lambda v, a=a, b=b: v[:, a:b], inputs), mask[:, a:b],
-            keys[:, :, a:b], rates_R, hparams, learning_rate=learning_rate, optimizer=optimizer)
+            keys[:, :, a:b], rates_R, hparams, optimizer=optimizer)
         losses.append(chunk_losses)
         if bar is not None:
             jax.block_until_ready(chunk_losses)
@@ -290,11 +310,34 @@ def _check_finite(epoch: int, losses: np.ndarray, state: dict, ckpt: Checkpointe
                          "(jaxstyle data prepare) or lower the learning rate")
 
 
+@dataclasses.dataclass(frozen=True)
+class FitOptions:
+    """How :func:`fit` runs an epoch loop.
+
+    Attributes:
+      log_every: steps per chunk (the progress bar moves between chunks).
+      progress: show a progress bar per epoch.
+      stop_after_epochs: end the call after that many epochs (to test resuming).
+      check_finite: raise :class:`~jaxstyle.train.checkpoint.NonFiniteError` (a
+        ``FloatingPointError``) naming the epoch when an epoch's losses or the state's parameters
+        are not all finite, before anything of that epoch is saved (the checkpointer refuses a
+        non-finite tree in any case).
+      say: where the line ``resumed from step N in DIR`` goes when a checkpoint is resumed
+        (default ``print``; ``None`` for silence). A damaged newest step is a warning naming it and
+        the step used instead; it is moved to ``DIR/damaged/`` so the resumed run can write it again.
+    """
+
+    log_every: int = 50
+    progress: bool = True
+    stop_after_epochs: int | None = None
+    check_finite: bool = True
+    say: Callable[[str], None] | None = print
+
+
 def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callable]], *,
-        directory: str | Path | None = None, run_config: Any = None, log_every: int = 50,
-        end_epoch: Callable[[int, dict, np.ndarray], dict] | None = None, progress: bool = True,
-        stop_after_epochs: int | None = None, check_finite: bool = True,
-        say: Callable[[str], None] | None = print) -> dict:
+        directory: str | Path | None = None, run_config: Any = None,
+        end_epoch: Callable[[int, dict, np.ndarray], dict] | None = None,
+        options: FitOptions = FitOptions()) -> dict:
     """The epoch loop of a training run; returns the final state.
 
     Args:
@@ -306,19 +349,13 @@ def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callabl
         the per-step losses ``(b - a,)`` or ``(b - a, K)`` (column 0 the training loss).
       directory: the run folder: ``config.json`` (``run_config``), orbax checkpoints (one per
         epoch, the last 3 kept) and ``log.csv``; ``None`` keeps nothing.
-      log_every: steps per chunk (the progress bar moves between chunks).
       end_epoch: ``end_epoch(epoch, state, losses_TxK) -> row``, the epoch's ``log.csv`` columns
         after ``epoch`` (e.g. validation losses), called with a directory only; ``fit`` fills
         ``"seconds"`` (at the row's ``"seconds"`` key if present, else last).
-      stop_after_epochs: end this call after that many epochs (to test resuming).
-      check_finite: raise :class:`~jaxstyle.train.checkpoint.NonFiniteError` (a
-        ``FloatingPointError``) naming the epoch when an epoch's losses or the state's parameters
-        are not all finite, before anything of that epoch is saved (the checkpointer refuses a
-        non-finite tree in any case).
-      say: where the line ``resumed from step N in DIR`` goes when a checkpoint is resumed
-        (default ``print``; ``None`` for silence). A damaged newest step is a warning naming it and
-        the step used instead; it is moved to ``DIR/damaged/`` so the resumed run can write it again.
+      options: chunking, progress, early stop, the finite check, the resume line (:class:`FitOptions`).
     """
+    log_every, progress, stop_after_epochs = options.log_every, options.progress, options.stop_after_epochs
+    check_finite, say = options.check_finite, options.say
     ckpt = Checkpointer(directory, run_config) if directory is not None else None
     try:
         if ckpt is not None and ckpt.latest_step() is not None:
