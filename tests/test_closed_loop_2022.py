@@ -92,11 +92,12 @@ def test_rollout_loss_feeds_the_network_what_the_runtime_would(real):
     key, clip, bones = jax.random.PRNGKey(3), int(data.train_clips[0][0]), data.bones
     zero = jnp.float32(0.0)
     def rollout_loss(steps):  # jitted: eager it takes seconds
-        return jax.jit(lambda p: lpn_loss.rollout_loss(p, mc, arrays, feedback, idx, 0, clip, key, zero, bones, 1.0,
-                                                        steps=steps))(params)
+        return jax.jit(lambda p: lpn_loss.rollout_loss(p, mc, arrays, feedback, lpn_loss.Batch(idx, 0, clip), key,
+                                                        lpn_loss.LossWeights(zero, 1.0), bones, steps=steps))(params)
 
     l0, (m0, b0) = rollout_loss(0)
-    lb, (mb, bb) = lpn_loss.batch_loss(params, mc, arrays, idx, 0, clip, key, zero, bones, 1.0)
+    lb, (mb, bb) = lpn_loss.batch_loss(params, mc, arrays, lpn_loss.Batch(idx, 0, clip), key,
+                                       lpn_loss.LossWeights(zero, 1.0), bones)
     np.testing.assert_allclose([l0, m0, b0], [lb, mb, bb], rtol=1e-6)
 
     # the reference second frame, built by the runtime's advance from the de-normalised row

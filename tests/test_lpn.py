@@ -332,8 +332,9 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
 
     def loss_fn(gen, inputs, key):
         idx, clip = inputs
-        return lpn_loss.batch_loss({**frozen, "style": {"generator": gen}}, config, arrays, idx, 0, clip, key,
-                                    jnp.float32(0.3), data.bones, jnp.float32(1.0))[0]
+        return lpn_loss.batch_loss({**frozen, "style": {"generator": gen}}, config, arrays,
+                                   lpn_loss.Batch(idx, 0, clip), key,
+                                   lpn_loss.LossWeights(jnp.float32(0.3), jnp.float32(1.0)), data.bones)[0]
 
     gen0 = params["style"]["generator"]
     one, _, losses = jax.jit(lambda g: train_lpn.scan.train_scan(

@@ -35,8 +35,9 @@ def _reference_steps(params, config, data, steps):
 
     def loss_fn(p, inputs, key):
         idx, style, clip = inputs
-        return lpn_loss.batch_loss(p, config.model, arrays, idx, style, clip, key, jnp.float32(config.dropout_rate),
-                                    bones, jnp.float32(config.bone_loss_weight))
+        return lpn_loss.batch_loss(p, config.model, arrays, lpn_loss.Batch(idx, style, clip), key,
+                                   lpn_loss.LossWeights(jnp.float32(config.dropout_rate),
+                                                        jnp.float32(config.bone_loss_weight)), bones)
 
     opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
     out = jax.jit(lambda p, o: scan.train_scan(loss_fn, p, o, scan.Steps((b, s, c), jnp.ones(steps, bool), keys),
@@ -86,8 +87,8 @@ def test_train_one_epoch_equals_the_reference_steps():
 
     def loss_fn(p, inputs, key):
         idx, style, clip = inputs
-        return lpn_loss.batch_loss(p, config.model, arrays, idx, style, clip, key, jnp.float32(0.3), data.bones,
-                                    jnp.float32(1.0))
+        return lpn_loss.batch_loss(p, config.model, arrays, lpn_loss.Batch(idx, style, clip), key,
+                                   lpn_loss.LossWeights(jnp.float32(0.3), jnp.float32(1.0)), data.bones)
 
     opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
     steps = scan.Steps((jnp.asarray(batches), jnp.asarray(styles), jnp.asarray(clips)), jnp.ones(len(batches), bool),

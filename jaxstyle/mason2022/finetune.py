@@ -26,7 +26,7 @@ from jaxstyle.data import datasets
 from jaxstyle.data.folders import PipelineError, user_clip_specs
 from jaxstyle.mason2022 import styledata
 from jaxstyle.mason2022 import train as train_lpn
-from jaxstyle.mason2022.loss import batch_loss
+from jaxstyle.mason2022.loss import Batch, LossWeights, batch_loss
 from jaxstyle.mason2022.pipeline import LPNData, Model
 from jaxstyle.mason2022.styledata import StaticBones, StyleData, bones_of, device_arrays
 from jaxstyle.nn import film_generator as film
@@ -81,8 +81,8 @@ class GeneratorLoss:
     def __call__(self, generator, frozen, inputs, key, rate, hparams):
         idx, clip = inputs
         params = {**frozen["params"], "style": {"generator": generator}}
-        return batch_loss(params, self.config, frozen["arrays"], idx, 0, clip, key, rate, bones_of(self.bones),
-                          hparams["weight"])[0]
+        return batch_loss(params, self.config, frozen["arrays"], Batch(idx, 0, clip), key,
+                          LossWeights(rate, hparams["weight"]), bones_of(self.bones))[0]
 
 
 class FilmSweep(NamedTuple):

@@ -11,6 +11,8 @@ fed the network's own outputs through the runtime's feed-back).
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import jax
 import jax.numpy as jnp
 
@@ -35,25 +37,46 @@ def losses(pred_BxO, y_BxO, bones: BonePositions) -> tuple[jax.Array, jax.Array]
     return mse, bll
 
 
+class Batch(NamedTuple):
+    """One minibatch: rows ``idx_B`` of style ``style``; a FiLM model's style comes from training
+    clip ``clip`` (scalars or traced arrays)."""
+
+    idx_B: Any
+    style: Any
+    clip: Any
+
+
+class LossWeights(NamedTuple):
+    """The objective's settings, traced (arrays, so sweeps vmap over them): ``rate``, the dropout
+    rate; ``bone_loss_weight``, Eq. 6's weight of the bone-length loss; ``input_noise``, the standard
+    deviation of :func:`noisy_inputs` (0: the paper's recipe)."""
+
+    rate: Any
+    bone_loss_weight: Any
+    input_noise: Any = 0.0
+
+
 def _style(params, config: StyleModelConfig, clips, style, clip, key, rate):
     if config.modulation == "film":
         return film.generator_apply(params["style"]["generator"], clips[clip][None], key=key, dropout_rate=rate)
     return style_models.style_runtime(params, config, style)
 
 
-def batch_loss(params, config: StyleModelConfig, arrays, idx_B, style, clip, key, rate, bones: BonePositions,
-               bone_loss_weight, input_noise=0.0) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
-    """``MSE + w BLL`` of one minibatch of style ``style`` (rows ``idx_B``), a FiLM model's
-    parameters from clip ``clip``; returns the total and ``(mse, bll)``. ``input_noise``: the
-    standard deviation of Gaussian noise added to the normalised inputs (:func:`noisy_inputs`; 0:
-    the paper's recipe, the same value as without it)."""
+def batch_loss(params, config: StyleModelConfig, arrays, batch: Batch, key, weights: LossWeights,
+               bones: BonePositions) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+    """``MSE + w BLL`` of one minibatch (:class:`Batch`: rows of one style, a FiLM model's
+    parameters from one clip) with the dropout rate, bone-length weight and input noise of
+    ``weights`` (:class:`LossWeights`; noise 0 gives the same value as the paper's recipe);
+    returns the total and ``(mse, bll)``."""
     x, y, gate, clips = arrays
+    idx_B, style, clip = batch
+    rate = weights.rate
     k_style, k_model = jax.random.split(key)
     st = _style(params, config, clips, style, clip, k_style, rate)
-    x_B = noisy_inputs(x[idx_B], jax.random.fold_in(key, 1), input_noise)
+    x_B = noisy_inputs(x[idx_B], jax.random.fold_in(key, 1), weights.input_noise)
     pred = style_models.model_apply(params, config, x_B, gate[idx_B], st, key=k_model, dropout_rate=rate)
     mse, bll = losses(pred, y[idx_B], bones)
-    return mse + bone_loss_weight * bll, (mse, bll)
+    return mse + weights.bone_loss_weight * bll, (mse, bll)
 
 
 def noisy_inputs(x_BxD: jax.Array, key: jax.Array, std) -> jax.Array:
@@ -67,11 +90,10 @@ def noisy_inputs(x_BxD: jax.Array, key: jax.Array, std) -> jax.Array:
     return x_BxD + std * jax.random.normal(key, x_BxD.shape, x_BxD.dtype)
 
 
-def rollout_loss(params, config: StyleModelConfig, arrays, feedback, idx_B, style, clip, key, rate,
-                 bones: BonePositions, bone_loss_weight, input_noise=0.0, *, steps: int
-                 ) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+def rollout_loss(params, config: StyleModelConfig, arrays, feedback, batch: Batch, key, weights: LossWeights,
+                 bones: BonePositions, *, steps: int) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
     """Rollout training (not in the paper): the mean of :func:`batch_loss`'s ``MSE + w BLL`` over
-    windows of ``1 + steps`` consecutive frames starting at rows ``idx_B``
+    windows of ``1 + steps`` consecutive frames starting at the batch's rows
     (:func:`jaxstyle.mason2022.styledata.rollout_starts`). The first frame reads the captured input;
     each later frame reads the captured trajectory (the user's control at runtime) with the joint features the network
     predicted one frame before, re-expressed in the frame it predicted
@@ -89,6 +111,8 @@ def rollout_loss(params, config: StyleModelConfig, arrays, feedback, idx_B, styl
 
     x, y, gate, clips = arrays
     next_row, x_mean, x_std, y_mean, y_std = feedback
+    idx_B, style, clip = batch
+    rate, bone_loss_weight, input_noise = weights
     layout = LPNLayout.of_inputs(x.shape[1])
     j0 = layout.input_groups["joint_position"].start
     k_style, k_model = jax.random.split(key)

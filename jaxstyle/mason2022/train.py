@@ -26,7 +26,7 @@ import numpy as np
 import optax
 
 from jaxstyle.data.batching import balanced_batches
-from jaxstyle.mason2022.loss import batch_loss, positions_m, rollout_loss
+from jaxstyle.mason2022.loss import Batch, LossWeights, batch_loss, positions_m, rollout_loss
 from jaxstyle.mason2022.styledata import BonePositions, StaticBones, StyleData, bones_of, device_arrays, rollout_starts
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import lpn, pfnn, style_models
@@ -90,13 +90,13 @@ def _step_loss(params, config: StyleModelConfig, arrays, inputs, key, rate, weig
     products (accumulated in float32: :func:`jaxstyle.nn.pfnn.pf_dense`,
     :func:`jaxstyle.nn.film_generator.generator_apply`), the float32 master weights get float32
     gradients through the cast and Adam runs in float32 (mixed precision, Micikevicius et al. 2018)."""
-    idx, style, clip = inputs
     if compute_dtype != "float32":
         params = pfnn.cast_weights(params, jnp.dtype(compute_dtype))
+    weights = LossWeights(rate, weight, noise)
     if rollout_steps:
-        return rollout_loss(params, config, arrays, feedback, idx, style, clip, key, rate, bones_of(bones), weight,
-                            noise, steps=rollout_steps)
-    return batch_loss(params, config, arrays, idx, style, clip, key, rate, bones_of(bones), weight, noise)
+        return rollout_loss(params, config, arrays, feedback, Batch(*inputs), key, weights, bones_of(bones),
+                            steps=rollout_steps)
+    return batch_loss(params, config, arrays, Batch(*inputs), key, weights, bones_of(bones))
 
 
 @functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate", "compute_dtype", "rollout_steps"),
