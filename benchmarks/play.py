@@ -51,7 +51,7 @@ from jaxstyle.data import folders, procedural
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2018 import pipeline
+from jaxstyle.mason2018 import fewshot, pipeline
 from jaxstyle.mason2022 import pipeline as pipeline2022
 from jaxstyle.mason2022 import styledata
 from jaxstyle.mason2022 import synthesis as synthesis2022
@@ -243,7 +243,7 @@ def learn_benchmark(run: Path, epochs: int) -> None:
         specs = [dataclasses.replace(s, style="Proud10") for s in folders.user_clip_specs([clip], True, None)]
         cells = []
         for e in (epochs, 40):
-            result = pipeline.run_sweep(base, specs, epochs=e, progress=False).result
+            result = pipeline.run_sweep(base, specs, fewshot.SweepConfig(epochs=e), progress=False).result
             cells.append(f"{e} epochs: {result.validation_loss[0, int(result.chosen[0])]:.4f} at rate "
                          f"{result.chosen_rate('Proud10'):g} ({result.seconds['sweep']:.1f} s fine-tuning)")
         print(f"\nvalidation loss of the chosen rate, Proud10 (no render loop): {cells[0]}; {cells[1]}")

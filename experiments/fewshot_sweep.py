@@ -65,8 +65,9 @@ def main() -> None:
     print(f"\nfew-shot sets of {'your clips' if user else f'{args.seconds:g} s'}; rates {args.rates}; "
           f"{args.epochs} epochs")
     sweep = pipeline.run_sweep(
-        base, specs, rates=args.rates, epochs=args.epochs, adapter_dropout_only=args.adapter_dropout_only,
-        matmul_dtype=args.matmul_dtype, skeleton=datasets.load_clip(specs[0], fps=60.0) if user else None,
+        base, specs, js.SweepConfig(rates=tuple(args.rates), epochs=args.epochs,
+                                    adapter_dropout_only=args.adapter_dropout_only, matmul_dtype=args.matmul_dtype),
+        skeleton=datasets.load_clip(specs[0], fps=60.0) if user else None,
         cache=args.cache)
     result, paths = sweep.result, pipeline.write_sweep(sweep, args.out)
     pairs = len(result.styles) * len(result.rates)

@@ -100,10 +100,12 @@ def main() -> None:
         (args.out / "results.md").write_text("\n".join(partial) + "\n\n(partial: the run goes on)\n")
         report.curves_figure(done.logs, args.out / "curves.png")
 
-    runs, logs, results = pipeline.train_models(data, args.models, args.out, deadline, jobs_after=int(tune_new),
-                                                max_epochs=args.max_epochs, hidden=args.hidden,
-                                                generator_hidden=args.generator_hidden, filters=args.filters,
-                                                progress=show, after_each=after_each)
+    configs = {name: pipeline.model_config(data.base, name, hidden=args.hidden,
+                                           generator_hidden=args.generator_hidden, filters=args.filters)
+               for name in args.models}
+    budget = pipeline.SharedBudget(deadline, jobs_after=int(tune_new), max_epochs=args.max_epochs)
+    runs, logs, results = pipeline.train_models(data, configs, args.out, budget, progress=show,
+                                                after_each=after_each)
     lines += report.budget_table(runs, logs)
     lines += ["", "Test rows, dropout off: mean over styles, then per style MSE / BLL:", ""]
     lines += report.models_table(data.base.styles, results)

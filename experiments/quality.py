@@ -130,7 +130,7 @@ def main() -> None:
         chosen, shots = pipeline.load_sweep(sweep_dir, base, cache=cache)
     else:
         specs = pipeline.fewshot_specs(root, shot_styles, seconds=10.0, gaits=("FW",))
-        sweep = pipeline.run_sweep(base, specs, rates=rates, epochs=shot_epochs, cache=cache)
+        sweep = pipeline.run_sweep(base, specs, js.SweepConfig(rates=tuple(rates), epochs=shot_epochs), cache=cache)
         pipeline.write_sweep(sweep, sweep_dir)
         shots = sweep.shots
         chosen = json.loads((sweep_dir / "chosen_rates.json").read_text())

@@ -360,6 +360,7 @@ def test_a_set_that_failed_every_check_is_refused_unless_allowed(demo_run, tmp_p
     import shutil
 
     from jaxstyle.mason2018 import fewshot, pipeline, selection, sweep_files
+    from jaxstyle.train import scan
 
     run = tmp_path / "run"
     shutil.copytree(demo_run, run)
@@ -367,8 +368,8 @@ def test_a_set_that_failed_every_check_is_refused_unless_allowed(demo_run, tmp_p
     _, shots = pipeline.load_sweep(run / "sweep", base, cache=run / "cache")
     config = fewshot.SweepConfig(model=base.model, rates=(0.3, 0.5), epochs=1)
     impossible = selection.RolloutCheck(max_bone_error=-1.0)
-    result = selection.fewshot_sweep(base.params, base.normalisers, shots, base.skeleton, config, check=impossible,
-                                     progress=False)
+    result = selection.fewshot_sweep(base.params, base.normalisers, shots, base.skeleton, config,
+                                     selection.FewshotOptions(check=impossible, run=scan.GridRun(chunk_steps=100)))
     assert not result.chosen_passed.any()
     (name,) = [s for s in result.styles if s.startswith("Limping")][:1]
     assert result.failed(name) and result.failed(name)[0].startswith("bone error ")

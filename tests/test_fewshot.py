@@ -125,7 +125,8 @@ def test_sharded_grid_matches_one_device():
         params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
         b, m = scan.sweep_batches(rows, config.epochs, config.batch_size)
         one, _ = fewshot.adapter_sweep(params, x, y, phase, b, m, config)
-        two, _ = fewshot.adapter_sweep(params, x, y, phase, b, m, config, shard=True)  # 3 styles padded to 4
+        # 3 styles padded to 4
+        two, _ = fewshot.adapter_sweep(params, x, y, phase, b, m, config, run=scan.GridRun(shard=True))
         for a, c in zip(jax.tree.leaves(one), jax.tree.leaves(two)):
             assert a.shape == c.shape
             np.testing.assert_allclose(a, c, rtol=1e-4, atol=1e-6)

@@ -163,12 +163,15 @@ def test_train_models_trains_each_in_its_share_and_resumes(tiny, tmp_path):
     data = pipeline.build_data(root, ("Neutral",), cache=cache)
     seen = []
     names = ("LPN One-hot", "LPN FiLM")
-    kw = dict(hidden=8, generator_hidden=16, filters=4, max_epochs=2, progress=False)
-    done = pipeline.train_models(data, names, tmp_path, time.perf_counter(), jobs_after=1, **kw,
-                                 after_each=lambda name, d: seen.append((name, tuple(d.runs))))
+    configs = {name: pipeline.model_config(data.base, name, hidden=8, generator_hidden=16, filters=4)
+               for name in names}
+    done = pipeline.train_models(data, configs, tmp_path,
+                                 pipeline.SharedBudget(time.perf_counter(), jobs_after=1, max_epochs=2),
+                                 progress=False, after_each=lambda name, d: seen.append((name, tuple(d.runs))))
     assert seen == [("LPN One-hot", ("LPN One-hot",)), ("LPN FiLM", names)]  # a partial report after each
     assert [(r.epochs, r.stopped) for r in done.runs.values()] == [(1, "budget"), (1, "budget")]  # no time: 1 epoch
     assert all(np.isfinite(done.results[n]["mse"]).all() and len(done.logs[n]["epoch"]) == 1 for n in names)
     assert report.model_line("LPN FiLM", done).startswith("LPN FiLM: 1 epochs (budget) in ")
-    again = pipeline.train_models(data, names, tmp_path, time.perf_counter() + 1e6, **kw)
+    again = pipeline.train_models(data, configs, tmp_path,
+                                  pipeline.SharedBudget(time.perf_counter() + 1e6, max_epochs=2), progress=False)
     assert [(r.epochs, r.stopped) for r in again.runs.values()] == [(2, "max epochs"), (2, "max epochs")]

@@ -190,5 +190,5 @@ def test_a_clip_with_the_bases_joints_in_another_order_is_refused(tmp_path):
     specs = folders.user_clip_specs([clip], False, None)
     with pytest.raises(PipelineError, match=rf"Swapped\.bvh: its joints are the base's in another order \(joint {a} "
                                             rf"is '{motion.names[b]}', the base's is '{motion.names[a]}'\)"):
-        pipeline.run_sweep(base, specs, epochs=1, rates=(0.3,), progress=False)
+        pipeline.run_sweep(base, specs, fewshot.SweepConfig(epochs=1, rates=(0.3,)), progress=False)
     assert not (tmp_path / "sweep").exists()

@@ -58,7 +58,8 @@ def test_chunked_sweep_equals_one_call():
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), SMALL)
     b, m = scan.sweep_batches(rows, config.epochs, config.batch_size)
     whole, lw = fewshot.adapter_sweep(params, x, y, phase, b, m, config)
-    chunked, lc = fewshot.adapter_sweep(params, x, y, phase, b, m, config, chunk_steps=5)  # 12 steps: 5 + 5 + 2
+    # 12 steps: 5 + 5 + 2
+    chunked, lc = fewshot.adapter_sweep(params, x, y, phase, b, m, config, run=scan.GridRun(chunk_steps=5))
     for p, q in zip(jax.tree.leaves(whole), jax.tree.leaves(chunked), strict=True):
         np.testing.assert_allclose(np.asarray(q), np.asarray(p), rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(np.asarray(lc), np.asarray(lw), rtol=1e-5)
@@ -105,8 +106,8 @@ def test_fewshot_sweep_end_to_end_writes_a_report(fewshot_set, tmp_path):
                             rank=8)
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), model)
     config = fewshot.SweepConfig(model=model, epochs=2, rates=(0.3, 0.7))
-    result = selection.fewshot_sweep(params, dataset.normalisers(), dataset, skeleton, config,
-                                     check=selection.RolloutCheck(seconds=1.0), progress=False)
+    options = selection.FewshotOptions(check=selection.RolloutCheck(seconds=1.0), run=scan.GridRun(chunk_steps=100))
+    result = selection.fewshot_sweep(params, dataset.normalisers(), dataset, skeleton, config, options)
     assert result.styles == ("Elated", "Rushed")
     assert result.validation_loss.shape == (2, 2) and np.isfinite(result.validation_loss).all()
     for k in selection.ROLLOUT_FIELDS:

@@ -52,12 +52,13 @@ def add_arguments(p) -> None:
 
 def sweep_and_report(run: Run, args, base, specs):
     """Run the sweep into RUN/sweep and print its table; returns the result, report paths and shots."""
-    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.mason2018 import fewshot, pipeline
 
     t0 = time.perf_counter()
-    sweep = pipeline.run_sweep(base, specs, rates=args.rates, epochs=args.sweep_epochs,
-                               adapter_dropout_only=args.adapter_dropout_only,
-                               cache=run.dir / "cache" if run.writer else None, progress=progress(args))
+    config = fewshot.SweepConfig(rates=tuple(args.rates), epochs=args.sweep_epochs,
+                                 adapter_dropout_only=args.adapter_dropout_only)
+    sweep = pipeline.run_sweep(base, specs, config, cache=run.dir / "cache" if run.writer else None,
+                               progress=progress(args))
     paths = (pipeline.write_sweep(sweep, run.dir / "sweep", replace=getattr(args, "replace", False)) if run.writer
              else {})
     result, shots = sweep.result, sweep.shots

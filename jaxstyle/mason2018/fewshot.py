@@ -159,18 +159,17 @@ class AdapterSweep(NamedTuple):
 
 
 def adapter_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: SweepConfig, *,
-                  shard: bool = False, chunk_steps: int | None = None, progress: bool = False) -> AdapterSweep:
+                  run: scan.GridRun | None = None) -> AdapterSweep:
     """Adapters ``(S, R, ...)`` and per-step losses ``(S, R, T)`` for every style x rate, in one
     compiled program. ``x, y, phase`` hold all styles' normalised rows (with the base
     statistics); ``batches``/``mask`` come from :func:`sweep_batches`.
 
+    ``run`` (:class:`jaxstyle.train.scan.GridRun`, default one call, no bar; none of it changes the result):
     ``chunk_steps`` runs the steps in chunks of that many (the same program, compiled once, called
     ``ceil(T / chunk_steps)`` times, the last chunk padded with masked steps), so ``progress=True``
-    can move a bar between chunks; the result is the same as in one call.
-
-    ``shard=True`` spreads the style axis over all devices (a 1-D ``jax.sharding`` mesh; the base
-    and the data are replicated), padding it with fully masked styles to a multiple of the device
-    count; the result is the same as on one device.
+    can move a bar between chunks; ``shard=True`` spreads the style axis over all devices (a 1-D
+    ``jax.sharding`` mesh; the base and the data are replicated), padding it with fully masked
+    styles to a multiple of the device count. Its ``desc`` is this sweep's own.
     """
     batches_SxTxB = np.asarray(batches_SxTxB)
     num_styles, num_steps = batches_SxTxB.shape[:2]
@@ -182,4 +181,4 @@ def adapter_sweep(params: dict, x, y, phase, batches_SxTxB, mask_SxT, config: Sw
         _loss_of(config), adapters, frozen_inputs(params, x, y, phase), scan.Steps(batches_SxTxB, mask_SxT, step_keys),
         jnp.asarray(config.rates, jnp.float32), optimizer=config.learning_rate,
         hparams={"lambda_s": jnp.float32(config.lambda_s)},
-        run=scan.GridRun(chunk_steps, shard, progress, f"sweep {num_styles} styles x {num_rates} rates")))
+        run=dataclasses.replace(run or scan.GridRun(), desc=f"sweep {num_styles} styles x {num_rates} rates")))

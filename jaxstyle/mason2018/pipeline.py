@@ -56,8 +56,8 @@ from jaxstyle.nn import pfnn
 from jaxstyle.output import drive
 from jaxstyle.output.check import FAILED_MARK, failed_check, refusal
 from jaxstyle.output.drive import Character
+from jaxstyle.train import scan
 from jaxstyle.train.checkpoint import json_text, read_json
-from jaxstyle.train.scan import DEFAULT_RATES
 
 # --- data ---------------------------------------------------------------------------------------
 
@@ -286,15 +286,16 @@ class LoadedSweep(NamedTuple):
     shots: datasets.Dataset
 
 
-def run_sweep(base: Base, specs: Sequence[ClipSpec], *, rates: Sequence[float] = DEFAULT_RATES, epochs: int = 100,
-              adapter_dropout_only: bool = False, matmul_dtype: str = "float32", skeleton: Motion | None = None,
-              cache: str | os.PathLike | None = None, progress: bool = True, shard: bool | None = None) -> SweepRun:
+def run_sweep(base: Base, specs: Sequence[ClipSpec], config: fewshot.SweepConfig | None = None, *,
+              skeleton: Motion | None = None, cache: str | os.PathLike | None = None, progress: bool = True,
+              shard: bool | None = None) -> SweepRun:
     """Fine-tune a new adapter per (few-shot set of ``specs``, rate) on the frozen base in one compiled
     sweep, validate and check them closed-loop (on ``skeleton``, default the base's) and choose a rate
     per set. Returns the result, the few-shot dataset, the specs and the config; writes nothing
-    (:func:`write_sweep` writes the report). ``cache``: where :func:`build` caches the
-    few-shot rows (``None``: no cache). ``adapter_dropout_only`` and
-    ``matmul_dtype``: see :class:`jaxstyle.mason2018.fewshot.SweepConfig`.
+    (:func:`write_sweep` writes the report). ``config``: rates, epochs and the rest of
+    :class:`jaxstyle.mason2018.fewshot.SweepConfig` (default its defaults; its ``model`` is replaced by the
+    base's).
+    ``cache``: where :func:`build` caches the few-shot rows (``None``: no cache).
 
     ``shard``: spread the sets over all devices (default: when ``jax.distributed`` runs several
     processes; every process then calls this alike and gets the whole result)."""
@@ -302,6 +303,8 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], *, rates: Sequence[float] =
         shard = jax.process_count() > 1
     if not specs:
         raise PipelineError("no few-shot clips")
+    config = config or fewshot.SweepConfig()
+    epochs, rates = config.epochs, config.rates
     if epochs < 1 or not rates or any(not 0 <= r < 1 for r in rates):
         raise PipelineError(f"need epochs >= 1 and dropout rates in [0, 1), got {epochs} and {list(rates)}")
     _check_joint_order(specs, base)
@@ -312,10 +315,10 @@ def run_sweep(base: Base, specs: Sequence[ClipSpec], *, rates: Sequence[float] =
         raise PipelineError(f"the few-shot clips give {shots.inputs.shape[1]} inputs but the base takes "
                             f"{base.model.input_size}: they need the base's skeleton ({base.skeleton.num_joints} "
                             "joints)")
-    config = fewshot.SweepConfig(model=base.model, epochs=epochs, rates=tuple(float(r) for r in rates),
-                                 adapter_dropout_only=adapter_dropout_only, matmul_dtype=matmul_dtype)
+    config = dataclasses.replace(config, model=base.model, rates=tuple(float(r) for r in rates))
     result = selection.fewshot_sweep(base.params, base.normalisers, shots, skeleton or base.skeleton, config,
-                                     progress=progress, shard=shard)
+                                     selection.FewshotOptions(run=scan.GridRun(chunk_steps=100, shard=shard,
+                                                                                progress=progress)))
     return SweepRun(result, shots, tuple(specs), config)
 
 

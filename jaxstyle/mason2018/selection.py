@@ -147,16 +147,14 @@ class RolloutChecks(NamedTuple):
     references: dict[str, np.ndarray]
 
 
-def check_rollouts(params: dict, adapters_SxR: dict, normalisers: tuple[Normaliser, Normaliser], dataset: Dataset,
-                   data: TrainData, skeleton: Motion, *, fps: float = 60.0, check: RolloutCheck | None = None,
-                   progress: bool = False) -> RolloutChecks:
-    """Closed-loop rollouts of every pair and their measures: ``(S, R)`` arrays named by
-    :data:`ROLLOUT_FIELDS`, and per-style reference figures: of the real training rows
-    (``contact_fraction``, ``skating_m_s``, ``speed_m_s``) and of the base without an adapter on
-    the same path (``base_skating_m_s``, ``base_bone_error``)."""
+def check_rollouts(model: PFNNModel, adapters_SxR: dict, dataset: Dataset, data: TrainData, skeleton: Motion, *,
+                   fps: float = 60.0, check: RolloutCheck | None = None, progress: bool = False) -> RolloutChecks:
+    """Closed-loop rollouts of every pair of the base ``model`` with its ``(S, R)`` adapters and
+    their measures: ``(S, R)`` arrays named by :data:`ROLLOUT_FIELDS`, and per-style reference
+    figures: of the real training rows (``contact_fraction``, ``skating_m_s``, ``speed_m_s``) and
+    of the base without an adapter on the same path (``base_skating_m_s``, ``base_bone_error``)."""
     check = check or RolloutCheck()
     upm = estimate_units_per_meter(skeleton)
-    model = PFNNModel.create(params, normalisers, skeleton.num_joints)
     num_frames = int(round(check.seconds * fps))
     num_styles = len(data.styles)
     ref = {k: np.zeros(num_styles) for k in ("contact_fraction", "skating_m_s", "speed_m_s")}
@@ -236,10 +234,30 @@ class SweepResult:
         return jax.tree.map(lambda v: v[s, r], self.adapters)
 
 
+@dataclasses.dataclass(frozen=True)
+class FewshotOptions:
+    """What :func:`fewshot_sweep` uses of its dataset, how it judges and how it runs.
+
+    Attributes:
+      styles: a subset of the dataset's styles (``None``: all).
+      holdout: keyword arguments of :func:`holdout_rows` (the validation rows).
+      fps: the rows' frame rate.
+      check: the closed-loop check's thresholds (:class:`RolloutCheck`).
+      run: steps per compiled call between progress updates, sharding of the styles over all
+        devices, progress bars (:class:`jaxstyle.train.scan.GridRun`; here with progress bars and
+        100 steps per call by default).
+    """
+
+    styles: Sequence[str] | None = None
+    holdout: dict | None = None
+    fps: float = 60.0
+    check: RolloutCheck = RolloutCheck()
+    run: scan.GridRun = scan.GridRun(chunk_steps=100, progress=True)
+
+
 def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], dataset: Dataset, skeleton: Motion,
-                  config: fewshot.SweepConfig | None = None, *, styles: Sequence[str] | None = None,
-                  check: RolloutCheck | None = None, holdout: dict | None = None, fps: float = 60.0,
-                  chunk_steps: int = 100, shard: bool = False, progress: bool = True) -> SweepResult:
+                  config: fewshot.SweepConfig | None = None, options: FewshotOptions = FewshotOptions()
+                  ) -> SweepResult:
     """Fine-tune a new adapter for every (style, rate) of ``dataset`` (few-shot styles, PFNN rows)
     on a frozen base, then validate, check and choose a rate per style (module docstring).
 
@@ -249,28 +267,26 @@ def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], data
       skeleton: a clip of the skeleton (bone lengths, feet, units) for the closed-loop check.
       config: sweep settings (:class:`jaxstyle.mason2018.fewshot.SweepConfig`); its ``model`` must describe
         ``params`` (the default is the paper's 234 -> 512 -> 512 -> 400 network).
-      styles: a subset of the dataset's styles; ``check``: :class:`RolloutCheck` thresholds;
-      holdout: keyword arguments of :func:`holdout_rows`; ``chunk_steps``: steps per compiled
-        call between progress updates; ``shard``: spread the styles over all devices
-        (:func:`jaxstyle.mason2018.fewshot.adapter_sweep`); ``progress``: tqdm bars.
+      options: styles, validation rows, frame rate, check thresholds, chunks, sharding and progress
+        (:class:`FewshotOptions`).
     """
     config = config or fewshot.SweepConfig()
-    check = check or RolloutCheck()
+    check, fps, progress = options.check, options.fps, options.run.progress
     if params["l0"]["W"].shape[1] != dataset.inputs.shape[1]:
         raise ValueError(f"the base model takes {params['l0']['W'].shape[1]} inputs but the few-shot "
                          f"dataset has {dataset.inputs.shape[1]} (a different skeleton?)")
     timings = {}
-    data = fewshot_data(dataset, normalisers, styles, fps=fps, **(holdout or {}))
+    data = fewshot_data(dataset, normalisers, options.styles, fps=fps, **(options.holdout or {}))
     batches, mask = scan.sweep_batches(data.train_rows, config.epochs, config.batch_size, seed=config.seed)
     t0 = time.perf_counter()
     adapters, losses = fewshot.adapter_sweep(params, jnp.asarray(data.x), jnp.asarray(data.y),
-                                              jnp.asarray(data.phase), batches, mask, config,
-                                              chunk_steps=chunk_steps, shard=shard, progress=progress)
+                                              jnp.asarray(data.phase), batches, mask, config, run=options.run)
     jax.block_until_ready(adapters)
     timings["sweep"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     val = validation_grid(params, adapters, data)
-    rollout, reference = check_rollouts(params, adapters, normalisers, dataset, data, skeleton, fps=fps, check=check,
+    model = PFNNModel.create(params, normalisers, skeleton.num_joints)
+    rollout, reference = check_rollouts(model, adapters, dataset, data, skeleton, fps=fps, check=check,
                                         progress=progress)
     timings["selection"] = time.perf_counter() - t0
     chosen, passed = choose_rates(val, rollout["passed"])

@@ -25,7 +25,7 @@ import os
 import time
 import warnings
 from pathlib import Path
-from typing import NamedTuple, Sequence
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -246,28 +246,37 @@ def model_folder(out: str | os.PathLike, name: str) -> Path:
     return Path(out) / name.replace(" ", "_")
 
 
-def train_models(data: LPNData, names: Sequence[str], out: str | os.PathLike, deadline: float, *,
-                 jobs_after: int = 0, max_epochs: int = 90, hidden: int = 512, generator_hidden: int = 2048,
-                 filters: int = 256, train_config: dict | None = None, progress: bool = True,
-                 after_each=None) -> ModelRuns:
-    """Train several of Table 2's models (``names``, in order) into ``out/<name>`` within one
-    wall-clock budget ending at ``deadline`` (``time.perf_counter()`` seconds), and test each.
+@dataclasses.dataclass(frozen=True)
+class SharedBudget:
+    """One wall-clock budget for several jobs (:func:`train_models`): it ends at ``deadline``
+    (``time.perf_counter()`` seconds); ``jobs_after`` later jobs (e.g. a fine-tuning sweep) get
+    their shares of it; each model trains at most ``max_epochs`` epochs (the paper: 90)."""
 
-    The rule: as each model starts, the time left is split evenly over the models left and
-    ``jobs_after`` later jobs (e.g. a fine-tuning sweep), so a model that stops early hands its
-    unused time to the jobs after it; each model trains by :func:`train_for` (whole epochs, at most
-    ``max_epochs``, early stop once validation has flattened). Sizes: :func:`model_config`;
-    ``train_config``: further :class:`jaxstyle.mason2022.train.LPNTrainConfig` fields (e.g. a
-    ``learning_rate``). ``after_each(name, model_runs)`` is called after each model (a partial
-    report). A second call with a later deadline resumes every folder."""
+    deadline: float
+    jobs_after: int = 0
+    max_epochs: int = 90
+
+
+def train_models(data: LPNData, configs: Mapping[str, StyleModelConfig], out: str | os.PathLike,
+                 budget: SharedBudget, *, train_config: dict | None = None, progress: bool = True,
+                 after_each=None) -> ModelRuns:
+    """Train several of Table 2's models (``configs``, name to :func:`model_config`, in order) into
+    ``out/<name>`` within one wall-clock budget (:class:`SharedBudget`), and test each.
+
+    The rule: as each model starts, the time left is split evenly over the models left and the
+    budget's later jobs, so a model that stops early hands its unused time to the jobs after it;
+    each model trains by :func:`train_for` (whole epochs, at most ``budget.max_epochs``, early stop
+    once validation has flattened). ``train_config``: further
+    :class:`jaxstyle.mason2022.train.LPNTrainConfig` fields (e.g. a ``learning_rate``).
+    ``after_each(name, model_runs)`` is called after each model (a partial report). A second call
+    with a later deadline resumes every folder."""
     out = Path(out)
     runs, logs, results = {}, {}, {}
-    jobs = len(names) + jobs_after
-    for i, name in enumerate(names):
-        share = max(0.0, (deadline - time.perf_counter()) / (jobs - i))
-        config = model_config(data.base, name, hidden=hidden, generator_hidden=generator_hidden, filters=filters)
+    jobs = len(configs) + budget.jobs_after
+    for i, (name, config) in enumerate(configs.items()):
+        share = max(0.0, (budget.deadline - time.perf_counter()) / (jobs - i))
         folder = model_folder(out, name)
-        runs[name] = train_for(data, config, folder, Budget(share, max_epochs=max_epochs), name=name,
+        runs[name] = train_for(data, config, folder, Budget(share, max_epochs=budget.max_epochs), name=name,
                                progress=progress, train_config=train_config)
         logs[name] = read_log(folder)
         results[name] = model_losses(runs[name].model)

@@ -24,7 +24,7 @@ from typing import Callable, Sequence
 
 from jaxstyle.data import folders
 from jaxstyle.errors import JaxstyleError
-from jaxstyle.mason2018 import pipeline
+from jaxstyle.mason2018 import fewshot, pipeline
 from jaxstyle.motion.bvh import read_bvh_names
 from jaxstyle.output.check import FAILED_MARK
 from jaxstyle.play.models import PlayError, PlayModel, Style, learned_root
@@ -163,7 +163,8 @@ class Learner:
             specs = folders.user_clip_specs([path], self.mirror, self.clip_range)
             specs = [dataclasses.replace(s, style=name) for s in specs]
             self._set_stage(STAGES[1])
-            sweep = pipeline.run_sweep(self.model.base, specs, rates=self.rates, epochs=self.epochs, progress=True)
+            config = fewshot.SweepConfig(rates=tuple(self.rates), epochs=self.epochs)
+            sweep = pipeline.run_sweep(self.model.base, specs, config, progress=True)
             pipeline.write_sweep(sweep, learned_root(self.model.run_dir) / name)
             result = sweep.result
             passed = bool(result.chosen_passed[result.styles.index(name)])
