@@ -179,8 +179,8 @@ def test_judge_pairs_measures_every_pair_against_the_base_column(mocap):
     diverged = np.where(np.arange(len(pos))[:, None, None] == 100, np.nan, pos)
     columns = [pos, sliding, diverged, pos]  # three pairs, then the base
     out, base = check_lib.judge_pairs([columns], [[origin, origin + (sliding - pos)[:, 0, [0, 2]], origin, origin]],
-                                      np.array([[True, True, False, True]]), motion, fps, [floor], upm, check,
-                                      np.array([speed]), np.array([real.contact_fraction]))
+                                      np.array([[True, True, False, True]]), check_lib.Judging(motion, fps, upm, check),
+                                      check_lib.Captures([floor], np.array([speed]), np.array([real.contact_fraction])))
     assert out["finite"].shape == (1, 3)
     np.testing.assert_array_equal(out["passed"][0], [1.0, 0.0, 0.0])
     why = [check_lib.failed_criteria({k: float(v[0, r]) for k, v in out.items()}, real.contact_fraction,

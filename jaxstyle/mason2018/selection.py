@@ -58,7 +58,7 @@ from jaxstyle.mason2018.train import TrainData
 from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
-from jaxstyle.output.check import choose_rates, failed_criteria, judge_pairs
+from jaxstyle.output.check import Captures, Judging, choose_rates, failed_criteria, judge_pairs
 from jaxstyle.train import defaults, scan
 
 # --- 1. hold-out -----------------------------------------------------------------------------------
@@ -186,8 +186,8 @@ def check_rollouts(model: PFNNModel, adapters_SxR: dict, dataset: Dataset, data:
                        np.isfinite(base_pos).all()])
         floors.append(floor)
         speeds.append(speed)
-    out, base_figures = judge_pairs(positions, origins, np.array(finite, bool), skeleton, fps, floors, upm, check,
-                                    np.array(speeds), ref["contact_fraction"])
+    out, base_figures = judge_pairs(positions, origins, np.array(finite, bool), Judging(skeleton, fps, upm, check),
+                                    Captures(floors, np.array(speeds), ref["contact_fraction"]))
     return RolloutChecks(out, {**ref, **base_figures})
 
 

@@ -31,7 +31,7 @@ from jaxstyle.mason2022.pipeline import LPNData, Model
 from jaxstyle.mason2022.styledata import StaticBones, StyleData, bones_of, device_arrays
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.output.check import choose_rates, failed_criteria
+from jaxstyle.output.check import Captures, Judging, choose_rates, failed_criteria, judge_pairs
 from jaxstyle.train import defaults, scan
 from jaxstyle.train.checkpoint import json_text
 from jaxstyle.train.defaults import FILM_DEFAULT_RATES
@@ -255,7 +255,6 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
     from jaxstyle.motion.kinematics import UP_AXIS, global_positions
     from jaxstyle.output import metrics
-    from jaxstyle.output.check import judge_pairs
 
     new, skeleton, raw = result.data, data.skeleton, data.new
     upm, num_joints = estimate_units_per_meter(skeleton), skeleton.num_joints
@@ -299,8 +298,8 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     finite_c = np.isfinite(positions).all(axis=(1, 2, 3)) & np.isfinite(np.asarray(out.outputs)).all(axis=(1, 2))
     grid = (num_styles, num_rates + 1)
     out_sr, base = judge_pairs(positions.reshape(grid + positions.shape[1:]), origin.reshape(grid + origin.shape[1:]),
-                               finite_c.reshape(grid), skeleton, fps, floors, upm, check, ref["speed_m_s"] * upm,
-                               ref["real_contact_fraction"])
+                               finite_c.reshape(grid), Judging(skeleton, fps, upm, check),
+                               Captures(floors, ref["speed_m_s"] * upm, ref["real_contact_fraction"]))
     return {**out_sr, **ref, **base}
 
 

@@ -11,6 +11,8 @@ passes, :func:`passes_check`, against the model before fine-tuning) and which ra
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple, Sequence
+
 import numpy as np
 
 from jaxstyle.motion import Motion
@@ -21,8 +23,28 @@ NAN_MEASURES = {"finite": 0.0, "bone_error": np.nan, "contact_fraction": np.nan,
                 "progress": np.nan}
 
 
-def rollout_measures(positions_TxJx3, origin_Tx2, finite: bool, skeleton: Motion, fps: float, floor,
-                     units_per_meter: float, check: RolloutCheck, speed: float) -> dict[str, float]:
+class Judging(NamedTuple):
+    """What rollouts are judged with: the ``skeleton`` (a clip of it: bone lengths, feet), the frame
+    rate ``fps``, ``units_per_meter`` and the ``check``'s thresholds."""
+
+    skeleton: Motion
+    fps: float
+    units_per_meter: float
+    check: RolloutCheck
+
+
+class Captures(NamedTuple):
+    """Per new style, of its capture: ``floors`` (its feet's planted heights), ``speeds_S`` (its
+    median speed, file units per second) and ``contact_fraction_S`` (the share of frames with a
+    foot on the floor)."""
+
+    floors: Sequence[Any]
+    speeds_S: np.ndarray
+    contact_fraction_S: np.ndarray
+
+
+def rollout_measures(positions_TxJx3, origin_Tx2, finite: bool, judging: Judging, floor,
+                     speed: float) -> dict[str, float]:
     """One rollout's measures (:data:`jaxstyle.train.defaults.ROLLOUT_FIELDS` but ``passed``), NaN
     when not ``finite``: mean bone-length error, the share of frames with a foot on the floor and
     the foot skating (:func:`jaxstyle.output.metrics.positions_foot_stats`, over the style's
@@ -30,6 +52,7 @@ def rollout_measures(positions_TxJx3, origin_Tx2, finite: bool, skeleton: Motion
     per second times :attr:`RolloutCheck.seconds`)."""
     if not finite:
         return dict(NAN_MEASURES)
+    skeleton, fps, units_per_meter, check = judging
     feet = metrics.positions_foot_stats(positions_TxJx3, skeleton, fps, floor, units_per_meter=units_per_meter,
                                         tolerance_m=check.tolerance_m)
     travelled = float(np.sum(np.linalg.norm(np.diff(origin_Tx2, axis=0), axis=-1)))
@@ -38,29 +61,27 @@ def rollout_measures(positions_TxJx3, origin_Tx2, finite: bool, skeleton: Motion
             "progress": travelled / (speed * check.seconds) if speed > 0 else np.nan}
 
 
-def judge_pairs(positions, origins, finite_SxR1: np.ndarray, skeleton: Motion, fps: float, floors,
-                units_per_meter: float, check: RolloutCheck, speeds_S: np.ndarray, real_contact_fraction_S: np.ndarray
+def judge_pairs(positions, origins, finite_SxR1: np.ndarray, judging: Judging, captures: Captures
                 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Both papers' closed-loop check of a sweep, from its rollouts: ``positions[s][r]`` ``(T, J,
     3)`` and ``origins[s][r]`` ``(T, 2)`` of every (new style ``s``, rate ``r``) pair and, as the
     last ``r``, of the model before fine-tuning from the same start on the same path;
-    ``finite_SxR1`` whether each rollout stayed finite; per style its ``floors`` (the capture's
-    floor heights), ``speeds_S`` (file units per second) and the capture's share of frames with a
-    foot on the floor. Returns the pairs' ``(S, R)`` measures (:func:`rollout_measures`) with
-    ``passed`` (:func:`passes_check`), and per style the model before fine-tuning's
-    ``base_skating_m_s`` and ``base_bone_error``."""
+    ``finite_SxR1`` whether each rollout stayed finite; ``judging`` (:class:`Judging`); per style
+    its capture's figures (:class:`Captures`). Returns the pairs' ``(S, R)`` measures
+    (:func:`rollout_measures`) with ``passed`` (:func:`passes_check`), and per style the model
+    before fine-tuning's ``base_skating_m_s`` and ``base_bone_error``."""
     num_styles, num_cols = np.shape(finite_SxR1)
     measures = {k: np.full((num_styles, num_cols), np.nan) for k in NAN_MEASURES}
     for s in range(num_styles):
         for r in range(num_cols):
-            row = rollout_measures(positions[s][r], origins[s][r], bool(finite_SxR1[s, r]), skeleton, fps,
-                                   floors[s], units_per_meter, check, float(speeds_S[s]))
+            row = rollout_measures(positions[s][r], origins[s][r], bool(finite_SxR1[s, r]), judging,
+                                   captures.floors[s], float(captures.speeds_S[s]))
             for k, v in row.items():
                 measures[k][s, r] = v
     base = {"base_skating_m_s": measures["skating_m_s"][:, -1], "base_bone_error": measures["bone_error"][:, -1]}
     out = {k: v[:, :-1] for k, v in measures.items()}
-    out["passed"] = passes_check(out, real_contact_fraction_S, base["base_skating_m_s"],
-                                 np.asarray(speeds_S) / units_per_meter, check).astype(float)
+    out["passed"] = passes_check(out, captures.contact_fraction_S, base["base_skating_m_s"],
+                                 np.asarray(captures.speeds_S) / judging.units_per_meter, judging.check).astype(float)
     return out, base
 
 
