@@ -82,7 +82,7 @@ def measure(loaded: synthesis2022.Loaded, styles, recipe: str, new_styles=()) ->
     skeleton = loaded.data.skeleton
     upm = estimate_units_per_meter(skeleton)
     chars = synthesis2022.characters(loaded, styles=styles, new_styles=new_styles, allow_failed=True)
-    driven = drive.drive(loaded.character_model(), chars, path_names=PATHS, seconds=SECONDS, units_per_meter=upm,
+    driven = drive.drive(loaded.character_model(), chars, drive.Course(PATHS, SECONDS), units_per_meter=upm,
                          fps=skeleton.fps)
     subjects = [quality.subject(c, "base", loaded.model.name) for c in chars]
     rows = quality.measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton,

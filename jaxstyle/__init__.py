@@ -29,6 +29,7 @@ _NAMES = {
     "CharacterModel": "control.model",
     "CharacterFrames": "motion.character_frame",
     "ContactConfig": "labels.contacts",
+    "Course": "output.drive",
     "FiLMConfig": "nn.film_generator",
     "FiLMFinetuneConfig": "mason2022.finetune",
     "FootContacts": "labels.contacts",

@@ -112,8 +112,7 @@ def test_a_toy_model_family_rolls_out_follows_paths_and_batches_like_single_roll
     dataset, skeleton, chars = data
     model = toy_model(skeleton)
     upm = estimate_units_per_meter(skeleton)
-    driven = drive.drive(model, chars, path_names=("straight", "circle"), seconds=2.0, units_per_meter=upm,
-                         fps=60.0)
+    driven = drive.drive(model, chars, drive.Course(("straight", "circle"), 2.0), units_per_meter=upm, fps=60.0)
     assert [p for _, p in driven.pairs] == ["straight", "circle"] * 2
     assert driven.rollouts.positions.shape == (4, 120, skeleton.num_joints, 3)
     for k, sig in enumerate(driven.signals):  # the path-following law closes the error of a tracker

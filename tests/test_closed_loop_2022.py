@@ -160,8 +160,8 @@ def test_a_tiny_lpn_on_a_periodic_gait_keeps_stepping_for_10_s(tmp_path):
     for floor in (0.0, PHASE_FLOOR):
         loaded = synthesis2022.Loaded(model, data, tmp_path / "lpn", 5, floor)
         chars = synthesis2022.characters(loaded, styles=styles)
-        driven = drive.drive(loaded.character_model(), chars, path_names=["straight"], seconds=10.0,
-                             units_per_meter=upm, fps=skeleton.fps)
+        driven = drive.drive(loaded.character_model(), chars, drive.Course(["straight"], 10.0), units_per_meter=upm,
+                             fps=skeleton.fps)
         subjects = [quality.subject(c, "base", "LPN FiLM") for c in chars]
         out = quality.measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton, driven.speeds)
         rows[floor] = {(r["style"], r["path"]): r for r in out.rows}

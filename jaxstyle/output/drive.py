@@ -12,6 +12,7 @@ jitted, batched ``lax.scan`` (:func:`jaxstyle.control.model.rollout_batch`, the 
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any, NamedTuple, Sequence
 
@@ -84,15 +85,28 @@ def check_paths(path_names: Sequence[str], seconds: float) -> None:
         raise ValueError(f"seconds must be positive, got {seconds}")
 
 
-def drive(model: CharacterModel, characters: Sequence, *, path_names: Sequence[str], seconds: float,
-          units_per_meter: float, fps: float, speed: float | None = None,
-          follow_seconds: float | None = loop.FOLLOW_SECONDS, timed: bool = False) -> Driven:
-    """Every character along every path (see the module docstring), in one batched rollout.
-    ``speed``: m/s for every character (``None``: each its style's own); ``follow_seconds``: the
-    path-following law's time constant (``None``: open loop). ``timed``: compile first, then time
-    the compiled rollout alone (``Driven.seconds``; NaN otherwise)."""
+@dataclasses.dataclass(frozen=True)
+class Course:
+    """Where characters are driven: every path of ``path_names``
+    (:data:`jaxstyle.control.paths.PATHS`) for ``seconds``; at ``speed`` m/s (``None``: each
+    character at its style's own median speed); ``follow_seconds``, the path-following law's time
+    constant (``None``: open loop)."""
+
+    path_names: Sequence[str]
+    seconds: float
+    speed: float | None = None
+    follow_seconds: float | None = loop.FOLLOW_SECONDS
+
+
+def drive(model: CharacterModel, characters: Sequence, course: Course, *, units_per_meter: float, fps: float,
+          timed: bool = False) -> Driven:
+    """Every character along every path of the ``course`` (:class:`Course`; see the module
+    docstring), in one batched rollout. ``timed``: compile first, then time the compiled rollout
+    alone (``Driven.seconds``; NaN otherwise)."""
     if not characters:
         raise ValueError("no characters to drive")
+    path_names, seconds, speed, follow_seconds = (course.path_names, course.seconds, course.speed,
+                                                  course.follow_seconds)
     check_paths(path_names, seconds)
     starts, speeds = start_states(model, characters, units_per_meter, fps, speed=speed)
     pairs = [(i, p) for i in range(len(characters)) for p in path_names]

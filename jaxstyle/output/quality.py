@@ -189,9 +189,8 @@ def run(model: CharacterModel, subjects: Sequence[Subject], skeleton: Motion, *,
     time constant ``follow_seconds``) and :func:`measure` each; then one :func:`capture_row` per
     subject. Returns the rows and, per ``(title, path)``, the exported skeleton's joint positions
     and the path's ideal positions (previews)."""
-    driven = drive.drive(model, subjects, path_names=path_names, seconds=seconds,
-                         units_per_meter=estimate_units_per_meter(skeleton), fps=skeleton.fps,
-                         follow_seconds=follow_seconds)
+    driven = drive.drive(model, subjects, drive.Course(path_names, seconds, follow_seconds=follow_seconds),
+                         units_per_meter=estimate_units_per_meter(skeleton), fps=skeleton.fps)
     return measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton, driven.speeds)
 
 

@@ -93,9 +93,8 @@ def synthesize(model: CharacterModel, characters: Sequence[Character], skeleton:
     path, ``contact_sheet.png`` if asked, and ``quality.csv`` (:func:`write_results`).
     """
     o = options
-    driven = drive.drive(model, characters, path_names=o.path_names, seconds=o.seconds,
-                         units_per_meter=estimate_units_per_meter(skeleton), fps=skeleton.fps, speed=o.speed,
-                         timed=True)
+    driven = drive.drive(model, characters, drive.Course(o.path_names, o.seconds, o.speed),
+                         units_per_meter=estimate_units_per_meter(skeleton), fps=skeleton.fps, timed=True)
     rows, files = write_results(out, characters, driven, skeleton, options)
     return SynthesisResult(rows, files, driven.seconds, len(driven.pairs) * int(driven.rollouts.positions.shape[1]),
                            dict(zip([c.title for c in characters], driven.speeds, strict=True)))
