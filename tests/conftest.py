@@ -34,8 +34,26 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
         os.environ.setdefault(_var, "1")
 
 # The command line's persistent compilation cache (jaxstyle.cli.common.use_xla_cache) stays off in
-# the tests, so every test compiles what it runs; tests of the cache set the variable themselves.
+# the tests; tests of the cache set the variable themselves.
 os.environ.setdefault("JAXSTYLE_XLA_CACHE", "off")
+
+# One JAX compilation cache for the whole test run: a fresh folder made by the first pytest process
+# (inherited by the xdist workers and every command the tests start, through the environment) and
+# removed when that process ends. A program is compiled the first time the run needs it; the same
+# program, compiled again in another worker or a command the tests start, is loaded instead (JAX
+# keys the cache on the program, the compile options, the XLA flags and the versions, so a hit is
+# the same executable). JAX's own thresholds apply (only programs that took at least 1 s to compile
+# are kept). JAXSTYLE_TEST_COMPILE_CACHE=off compiles everything.
+_RUN_CACHE = "JAXSTYLE_TEST_COMPILE_CACHE"
+if _RUN_CACHE not in os.environ:
+    import atexit
+    import shutil
+    import tempfile
+
+    os.environ[_RUN_CACHE] = tempfile.mkdtemp(prefix="jaxstyle-test-xla-")
+    atexit.register(shutil.rmtree, os.environ[_RUN_CACHE], True)
+if os.environ[_RUN_CACHE] != "off":
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.environ[_RUN_CACHE])  # read by JAX when it starts
 
 
 def _mocap_or_skip() -> Path:
