@@ -154,3 +154,40 @@ def test_a_toy_model_family_is_synthesized_and_measured_by_the_shared_code(data,
         own = model.own_speed(dataset, datasets.style_rows(dataset, c.style), estimate_units_per_meter(skeleton))
         assert r["style"] == c.title and r["speed_m_s"] == pytest.approx(own)
     assert paths.PATHS  # the toy used the shared paths only
+
+
+def test_a_toy_model_family_is_checked_like_a_fine_tuning_sweep_by_the_shared_code(data):
+    """The closed-loop check both papers' sweeps call: each (style, conditioning) character of the
+    one batched rollout is measured as its own single rollout (:func:`rollout_measures`), and the
+    check tells a conditioning that walks the path from one that stands still."""
+    from jaxstyle.labels.contacts import FootJoints, floor_heights
+    from jaxstyle.motion.kinematics import UP_AXIS
+    from jaxstyle.output import check as check_lib
+
+    dataset, skeleton, _ = data
+    model = toy_model(skeleton)
+    fps, upm = 60.0, estimate_units_per_meter(skeleton)
+    pos = global_positions(skeleton)
+    feet = list(FootJoints.find(skeleton).ankles) + list(FootJoints.find(skeleton).toes)
+    floor = floor_heights(pos[:, feet, UP_AXIS])
+    check = check_lib.RolloutCheck(seconds=2.0, turn_deg_per_s=30.0)
+    judging = check_lib.Judging(skeleton, fps, upm, check)
+    speed = 1.2 * upm
+    starts = [check_lib.StyleStart(model.initial_state(dataset, row, 1.0), speed, floor, 0.6) for row in (0, 40)]
+    styles = [[1.0, 0.0, 1.0], [0.9, 1.0, 1.0]]  # per style: two "rates", then the model before fine-tuning
+    out, base = check_lib.check_pairs(model, styles, starts, judging)
+    assert out["passed"].shape == (2, 2) and base["base_skating_m_s"].shape == (2,)
+    controls = loop.turning_path(120, speed, np.deg2rad(30.0), fps)
+    for s, start in enumerate(starts):
+        for r, style in enumerate(styles[s]):
+            one = rollout(model, jnp.float32(style), start.state, controls)
+            ref = check_lib.rollout_measures(np.asarray(one.positions), np.asarray(one.origin), True, judging,
+                                             floor, speed)
+            got = {k: out[k][s, r] if r < 2 else base[f"base_{k}"][s] for k in
+                   (("progress", "skating_m_s", "bone_error") if r < 2 else ("skating_m_s", "bone_error"))}
+            for k, v in got.items():
+                np.testing.assert_allclose(v, ref[k], rtol=1e-5, atol=1e-7, err_msg=f"{s} {r} {k}")
+    assert out["progress"][0, 0] == pytest.approx(1.0, abs=0.05) and out["progress"][0, 1] < 0.01
+    np.testing.assert_array_equal(out["passed"], [[1.0, 0.0], [1.0, 1.0]])  # standing still fails
+    with pytest.raises(ValueError, match="one row of the same length"):
+        check_lib.check_pairs(model, [[1.0, 1.0], [1.0]], starts, judging)

@@ -129,6 +129,25 @@ def test_rollout_vmaps_over_adapters_and_is_finite(clip):
                                atol=1e-2 * np.abs(np.asarray(one.positions)).max())
 
 
+def test_a_zero_adapter_drives_like_the_base_alone(clip):
+    """The closed-loop check's column of the base (:func:`jaxstyle.mason2018.selection.check_rollouts`)
+    is a zero adapter stacked with the fine-tuned ones: its residual is exactly zero, so its rollout
+    is the base's without an adapter."""
+    m, phase, x, y, t = clip
+    config = pfnn.PFNNConfig(input_size=x.shape[1], hidden_size=32, output_size=y.shape[1], rank=4)
+    params = pfnn.init_pfnn(jax.random.PRNGKey(0), config)
+    adapter = pfnn.init_adapter(jax.random.PRNGKey(1), config)
+    model = PFNNModel.create(params, (Normaliser(x.mean(0), x.std(0) + 1e-3), Normaliser(y.mean(0), y.std(0) + 1e-3)),
+                             m.num_joints)
+    state = controller.initial_state(x[0], phase[t[0]], m.num_joints)
+    path = loop.turning_path(30, 100.0, np.deg2rad(30))
+    base = rollout(model, None, state, path)
+    zero = rollout(model, jax.tree.map(jnp.zeros_like, adapter), state, path)
+    np.testing.assert_array_equal(np.asarray(zero.positions), np.asarray(base.positions))
+    moved = rollout(model, adapter, state, path)  # a random adapter changes the motion
+    assert np.abs(np.asarray(moved.positions) - np.asarray(base.positions)).max() > 1e-3
+
+
 def test_real_motion_metrics_are_plausible(clip):
     m, phase, x, y, t = clip
     g_pos = kinematics.global_positions(m)

@@ -47,9 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxstyle.control import loop
 from jaxstyle.control.controller import PFNNModel
-from jaxstyle.control.model import rollout
 from jaxstyle.data.datasets import Dataset
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.labels.contacts import estimate_units_per_meter
@@ -58,7 +56,7 @@ from jaxstyle.mason2018.train import TrainData
 from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
-from jaxstyle.output.check import Captures, Judging, choose_rates, failed_criteria, judge_pairs
+from jaxstyle.output.check import Judging, StyleStart, check_pairs, choose_rates, failed_criteria
 from jaxstyle.train import defaults, scan
 
 # --- 1. hold-out -----------------------------------------------------------------------------------
@@ -134,10 +132,6 @@ RolloutCheck = defaults.RolloutCheck  # the thresholds both papers' checks share
 ROLLOUT_FIELDS = defaults.ROLLOUT_FIELDS
 
 
-def _rollout_rates(model: PFNNModel, adapters_R, state, controls):
-    return jax.vmap(lambda a: rollout(model, a, state, controls))(adapters_R)
-
-
 class RolloutChecks(NamedTuple):
     """:func:`check_rollouts`' figures: per (set, rate) pair the ``measures`` ``(S, R)`` named by
     :data:`ROLLOUT_FIELDS`, and per set the ``references`` ``(S,)`` (the real training rows' and
@@ -148,23 +142,22 @@ class RolloutChecks(NamedTuple):
 
 
 def check_rollouts(model: PFNNModel, adapters_SxR: dict, dataset: Dataset, data: TrainData, skeleton: Motion, *,
-                   fps: float = 60.0, check: RolloutCheck | None = None, progress: bool = False) -> RolloutChecks:
-    """Closed-loop rollouts of every pair of the base ``model`` with its ``(S, R)`` adapters and
-    their measures: ``(S, R)`` arrays named by :data:`ROLLOUT_FIELDS`, and per-style reference
-    figures: of the real training rows (``contact_fraction``, ``skating_m_s``, ``speed_m_s``) and
-    of the base without an adapter on the same path (``base_skating_m_s``, ``base_bone_error``)."""
+                   fps: float = 60.0, check: RolloutCheck | None = None) -> RolloutChecks:
+    """The closed-loop check of every pair of the base ``model`` with its ``(S, R)`` adapters
+    (:func:`jaxstyle.output.check.check_pairs`, the base without an adapter as the last column: a
+    zero adapter, whose residual is exactly zero) and its measures: ``(S, R)`` arrays named by
+    :data:`ROLLOUT_FIELDS`, and per-style reference figures: of the real training rows
+    (``contact_fraction``, ``skating_m_s``, ``speed_m_s``; their feet as the network's output rows
+    give them) and of the base on the same path (``base_skating_m_s``, ``base_bone_error``). Each
+    style starts at its first training row."""
     check = check or RolloutCheck()
     upm = estimate_units_per_meter(skeleton)
-    num_frames = int(round(check.seconds * fps))
     num_styles = len(data.styles)
+    num_rates = jax.tree.leaves(adapters_SxR)[0].shape[1]
     ref = {k: np.zeros(num_styles) for k in ("contact_fraction", "skating_m_s", "speed_m_s")}
-    positions, origins, finite, floors, speeds = [], [], [], [], []
-    styles = range(num_styles)
-    if progress:
-        from tqdm.auto import tqdm
-
-        styles = tqdm(styles, desc="closed-loop checks", unit="style")
-    for s in styles:
+    starts, styles = [], []
+    zero = jax.tree.map(lambda v: jnp.zeros_like(v[0, 0]), adapters_SxR)
+    for s in range(num_styles):
         rows = data.train_rows[s]
         real_y = dataset.outputs[rows]
         real, floor = metrics.reference_foot_stats(real_y, skeleton, fps, units_per_meter=upm,
@@ -173,21 +166,9 @@ def check_rollouts(model: PFNNModel, adapters_SxR: dict, dataset: Dataset, data:
         ref["contact_fraction"][s], ref["skating_m_s"][s], ref["speed_m_s"][s] = (
             real.contact_fraction, real.skating, speed / upm)
         first = rows[np.argmin(dataset.frame[rows])]
-        state = model.initial_state(dataset, first)
-        controls = loop.turning_path(num_frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
-        adapters_R = jax.tree.map(lambda v, s=s: v[s], adapters_SxR)
-        result = _rollout_rates(model, adapters_R, state, controls)
-        base = rollout(model, None, state, controls)  # the base alone: the last column
-        pos, origin, outputs = (np.asarray(v) for v in (result.positions, result.origin, result.outputs))
-        base_pos = np.asarray(base.positions)
-        positions.append([*pos, base_pos])
-        origins.append([*origin, np.asarray(base.origin)])
-        finite.append([*(np.isfinite(pos).all(axis=(1, 2, 3)) & np.isfinite(outputs).all(axis=(1, 2))),
-                       np.isfinite(base_pos).all()])
-        floors.append(floor)
-        speeds.append(speed)
-    out, base_figures = judge_pairs(positions, origins, np.array(finite, bool), Judging(skeleton, fps, upm, check),
-                                    Captures(floors, np.array(speeds), ref["contact_fraction"]))
+        starts.append(StyleStart(model.initial_state(dataset, first), speed, floor, real.contact_fraction))
+        styles.append([jax.tree.map(lambda v, s=s, r=r: v[s, r], adapters_SxR) for r in range(num_rates)] + [zero])
+    out, base_figures = check_pairs(model, styles, starts, Judging(skeleton, fps, upm, check))
     return RolloutChecks(out, {**ref, **base_figures})
 
 
@@ -271,7 +252,7 @@ def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], data
         (:class:`FewshotOptions`).
     """
     config = config or fewshot.SweepConfig()
-    check, fps, progress = options.check, options.fps, options.run.progress
+    check, fps = options.check, options.fps
     if params["l0"]["W"].shape[1] != dataset.inputs.shape[1]:
         raise ValueError(f"the base model takes {params['l0']['W'].shape[1]} inputs but the few-shot "
                          f"dataset has {dataset.inputs.shape[1]} (a different skeleton?)")
@@ -286,8 +267,7 @@ def fewshot_sweep(params: dict, normalisers: tuple[Normaliser, Normaliser], data
     t0 = time.perf_counter()
     val = validation_grid(params, adapters, data)
     model = PFNNModel.create(params, normalisers, skeleton.num_joints)
-    rollout, reference = check_rollouts(model, adapters, dataset, data, skeleton, fps=fps, check=check,
-                                        progress=progress)
+    rollout, reference = check_rollouts(model, adapters, dataset, data, skeleton, fps=fps, check=check)
     timings["selection"] = time.perf_counter() - t0
     chosen, passed = choose_rates(val, rollout["passed"])
     losses = np.asarray(losses)

@@ -31,7 +31,7 @@ from jaxstyle.mason2022.pipeline import LPNData, Model
 from jaxstyle.mason2022.styledata import StaticBones, StyleData, bones_of, device_arrays
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.output.check import Captures, Judging, choose_rates, failed_criteria, judge_pairs
+from jaxstyle.output.check import Judging, StyleStart, check_pairs, choose_rates, failed_criteria
 from jaxstyle.train import defaults, scan
 from jaxstyle.train.checkpoint import json_text
 from jaxstyle.train.defaults import FILM_DEFAULT_RATES
@@ -243,64 +243,45 @@ DEFAULT_CHECK = ClosedLoopCheck()
 def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
                       check: ClosedLoopCheck = DEFAULT_CHECK) -> dict[str, np.ndarray]:
     """Drive every (new style, rate) of a fine-tuning sweep and, per new style, the model before
-    fine-tuning, in ONE batched rollout; returns ``(S, R)`` arrays named by :data:`CHECK_FIELDS`
-    and per style ``(S,)`` references ``real_contact_fraction``, ``speed_m_s``,
-    ``base_skating_m_s``, ``base_bone_error`` (see :class:`ClosedLoopCheck`; the measures and the
-    pass rule are the 2018 sweep's, :mod:`jaxstyle.output.check`). The characters run the default
-    runtime, local phases floored (:data:`jaxstyle.train.defaults.PHASE_FLOOR`), as synthesis does."""
-    from jaxstyle.control import loop, lpn_controller
-    from jaxstyle.control.model import rollout_batch
-    from jaxstyle.data.lpn_features import bone_points
-    from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
+    fine-tuning (:func:`jaxstyle.output.check.check_pairs`, one batched rollout); returns ``(S, R)``
+    arrays named by :data:`CHECK_FIELDS` and per style ``(S,)`` references
+    ``real_contact_fraction``, ``speed_m_s``, ``base_skating_m_s``, ``base_bone_error`` (see
+    :class:`ClosedLoopCheck`; the measures and the pass rule are the 2018 sweep's,
+    :mod:`jaxstyle.output.check`). Each style starts at the first frame of its first training clip
+    (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.initial_state`: that frame's pose, local
+    and global phases); the capture's feet are measured on that clip's BVH. The characters run the
+    default runtime, local phases floored (:data:`jaxstyle.train.defaults.PHASE_FLOOR`), as
+    synthesis does."""
+    from jaxstyle.control import lpn_controller
     from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
     from jaxstyle.motion.kinematics import UP_AXIS, global_positions
     from jaxstyle.output import metrics
 
     new, skeleton, raw = result.data, data.skeleton, data.new
-    upm, num_joints = estimate_units_per_meter(skeleton), skeleton.num_joints
-    num_bones, fps = len(bone_points(skeleton)[0]), float(skeleton.fps)
-    num_styles, num_rates = len(result.styles), len(result.rates)
-    frames = int(round(check.seconds * fps))
+    upm, fps = estimate_units_per_meter(skeleton), float(skeleton.fps)
+    num_rates = len(result.rates)
     feet = list(FootJoints.find(skeleton).ankles) + list(FootJoints.find(skeleton).toes)
     gen0 = model.params["style"]["generator"]
     character = lpn_controller.StyleNetModel.create(model.params, model.config, data.base.normalisers(), skeleton)
-    states, controls, styles = [], [], []
-    ref = {k: np.zeros(num_styles) for k in ("real_contact_fraction", "speed_m_s")}
-    floors = []
-    for s in range(num_styles):
+    starts, styles = [], []
+    for s in range(len(result.styles)):
         rows = new.train_rows[s]
         first_clip = int(raw.clip[rows].min())
-        motion = datasets.load_clip(raw.specs[first_clip])
-        real = global_positions(motion)
+        real = global_positions(datasets.load_clip(raw.specs[first_clip]))
         floor = floor_heights(real[:, feet, UP_AXIS])
-        floors.append(floor)
-        ref["real_contact_fraction"][s] = metrics.positions_foot_stats(
-            real, skeleton, fps, floor, units_per_meter=upm, tolerance_m=check.tolerance_m).contact_fraction
-        y = raw.outputs[rows]
-        # the first future trajectory sample (x at 0, z at FUTURE_SAMPLES) is the next frame's root
-        speed = float(np.median(np.hypot(y[:, 0], y[:, FUTURE_SAMPLES]))) * fps
-        ref["speed_m_s"][s] = speed / upm
+        contact = metrics.positions_foot_stats(real, skeleton, fps, floor, units_per_meter=upm,
+                                               tolerance_m=check.tolerance_m).contact_fraction
         clip_rows = rows[raw.clip[rows] == first_clip]
         start = clip_rows[np.argmin(raw.frame[clip_rows])]
-        state = lpn_controller.initial_state(raw.inputs[start], raw.phases[start], num_bones,
-                                             phase_floor=character.floor_per_frame(raw, new.styles[s]))
-        control = loop.turning_path(frames, speed, np.deg2rad(check.turn_deg_per_s), fps)
+        speed = character.own_speed(raw, rows, upm, fps) * upm  # file units / s
+        starts.append(StyleStart(character.initial_state(raw, start), speed, floor, contact))
         clips = new.clips[new.train_clips[s]]
-        for r in range(num_rates + 1):  # the last: the model before fine-tuning
-            gen = gen0 if r == num_rates else jax.tree.map(lambda v, s=s, r=r: v[s, r], result.generators)
-            styles.append(film.clip_films(gen, clips).mean(axis=0))
-            states.append(state)
-            controls.append(control)
-
-    out = rollout_batch(character, np.stack(styles), loop.stack_trees(states), loop.stack_trees(controls))
-    positions = np.asarray(out.positions)[:, :, :num_joints]
-    origin = np.asarray(out.origin)
-    finite_c = np.isfinite(positions).all(axis=(1, 2, 3)) & np.isfinite(np.asarray(out.outputs)).all(axis=(1, 2))
-    grid = (num_styles, num_rates + 1)
-    out_sr, base = judge_pairs(positions.reshape(grid + positions.shape[1:]), origin.reshape(grid + origin.shape[1:]),
-                               finite_c.reshape(grid), Judging(skeleton, fps, upm, check),
-                               Captures(floors, ref["speed_m_s"] * upm, ref["real_contact_fraction"]))
-    return {**out_sr, **ref, **base}
+        gens = [jax.tree.map(lambda v, s=s, r=r: v[s, r], result.generators) for r in range(num_rates)] + [gen0]
+        styles.append([film.clip_films(gen, clips).mean(axis=0) for gen in gens])
+    out, base = check_pairs(character, styles, starts, Judging(skeleton, fps, upm, check))
+    ref = {"real_contact_fraction": np.array([s.contact_fraction for s in starts]),
+           "speed_m_s": np.array([s.speed for s in starts]) / upm}
+    return {**out, **ref, **base}
 
 
 class FinetunedClips(NamedTuple):

@@ -1,12 +1,15 @@
 """The closed-loop check of fine-tuned new styles and the rate choice, both papers' (the 2018
-adapters' few-shot sweep, :mod:`jaxstyle.mason2018.selection`; the 2022 FiLM generators' sweep,
-:func:`jaxstyle.mason2022.finetune.closed_loop_check`).
+adapters' few-shot sweep, :func:`jaxstyle.mason2018.selection.check_rollouts`; the 2022 FiLM
+generators' sweep, :func:`jaxstyle.mason2022.finetune.closed_loop_check`).
 
-Each paper drives its fine-tuned pairs (style x dropout rate) and the model before fine-tuning
-along the check's path (:class:`jaxstyle.train.defaults.RolloutCheck`); the judgement of those
+Each paper measures its new styles' captures and the characters' starts from its own data
+(:class:`StyleStart`); the rest is written once here, for any
+:class:`jaxstyle.control.model.CharacterModel`: driving every fine-tuned pair (style x dropout
+rate) and the model before fine-tuning along the check's path in one batched rollout
+(:func:`check_pairs`, :class:`jaxstyle.train.defaults.RolloutCheck`), the judgement of those
 rollouts (:func:`judge_pairs`: what is measured of each, :func:`rollout_measures`; when a pair
 passes, :func:`passes_check`, against the model before fine-tuning) and which rate is chosen
-(:func:`choose_rates`) are written once here.
+(:func:`choose_rates`).
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
+from jaxstyle.control import loop
+from jaxstyle.control.model import CharacterModel, rollout_batch
 from jaxstyle.motion import Motion
 from jaxstyle.output import metrics
 from jaxstyle.train.defaults import RolloutCheck
@@ -83,6 +88,53 @@ def judge_pairs(positions, origins, finite_SxR1: np.ndarray, judging: Judging, c
     out["passed"] = passes_check(out, captures.contact_fraction_S, base["base_skating_m_s"],
                                  np.asarray(captures.speeds_S) / judging.units_per_meter, judging.check).astype(float)
     return out, base
+
+
+class StyleStart(NamedTuple):
+    """One new style's check, as its paper's data give it: the characters' start ``state``
+    (:meth:`jaxstyle.control.model.CharacterModel.initial_state` at a real frame of the style), its
+    capture's median ground ``speed`` (file units per second: the check's path is walked at it), its
+    feet's planted ``floor`` heights and its ``contact_fraction`` (the share of frames with a foot
+    on the floor)."""
+
+    state: Any
+    speed: float
+    floor: Any
+    contact_fraction: float
+
+
+def check_pairs(character: CharacterModel, styles_SxR1: Sequence[Sequence[Any]], starts: Sequence[StyleStart],
+                judging: Judging) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Both papers' closed-loop check of a fine-tuning sweep: every new style ``s`` drives its
+    ``R + 1`` conditionings ``styles_SxR1[s]`` (its ``R`` fine-tuned ones, then the model before
+    fine-tuning's) from ``starts[s].state`` along :func:`jaxstyle.control.loop.turning_path` at
+    ``starts[s].speed``, turning ``judging.check.turn_deg_per_s`` for ``judging.check.seconds``,
+    all ``S (R + 1)`` characters in ONE batched rollout
+    (:func:`jaxstyle.control.model.rollout_batch`, the model's weights shared); then
+    :func:`judge_pairs` (the skeleton's joints of the network's positions; a rollout is finite when
+    its positions and outputs are). Returns :func:`judge_pairs`' ``(S, R)`` measures and the model
+    before fine-tuning's per-style figures."""
+    fps, check = float(judging.fps), judging.check
+    frames = int(round(check.seconds * fps))
+    num_cols = {len(row) for row in styles_SxR1}
+    if len(num_cols) != 1 or len(styles_SxR1) != len(starts):
+        raise ValueError(f"styles_SxR1 must have one row of the same length per start, got rows of lengths "
+                         f"{sorted(num_cols)} for {len(starts)} starts")
+    grid = (len(starts), num_cols.pop())
+    states, controls = [], []
+    for start in starts:
+        control = loop.turning_path(frames, start.speed, np.deg2rad(check.turn_deg_per_s), fps)
+        states += [start.state] * grid[1]
+        controls += [control] * grid[1]
+    out = rollout_batch(character, character.stack_styles([c for row in styles_SxR1 for c in row]),
+                        loop.stack_trees(states), loop.stack_trees(controls))
+    positions = np.asarray(out.positions)[:, :, :judging.skeleton.num_joints]
+    origin = np.asarray(out.origin)
+    finite = np.isfinite(positions).all(axis=(1, 2, 3)) & np.isfinite(np.asarray(out.outputs)).all(axis=(1, 2))
+    return judge_pairs(positions.reshape(grid + positions.shape[1:]), origin.reshape(grid + origin.shape[1:]),
+                       finite.reshape(grid), judging,
+                       Captures([s.floor for s in starts], np.array([s.speed for s in starts], float),
+                                np.array([s.contact_fraction for s in starts], float)))
 
 
 def passes_check(out: dict[str, np.ndarray], real_contact_fraction_S, base_skating_m_s_S, speed_m_s_S,
