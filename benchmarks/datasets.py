@@ -19,14 +19,14 @@ import warnings
 from pathlib import Path
 
 import jaxstyle as js
-from jaxstyle.data import datasets
+from jaxstyle.data import clips, datasets
 
 
 def build_all(mocap: Path, cache: Path) -> tuple[datasets.Dataset, datasets.Dataset]:
-    lpn = datasets.build_lpn_dataset(datasets.specs_100style(mocap / "100style"), cache_dir=cache)
+    lpn = datasets.build_lpn_dataset(clips.specs_100style(mocap / "100style"), cache_dir=cache)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the clips too short for the trajectory window are skipped
-        specs = datasets.specs_xia(mocap / "xia") + datasets.specs_pfnn(mocap / "pfnn_excerpt")
+        specs = clips.specs_xia(mocap / "xia") + clips.specs_pfnn(mocap / "pfnn_excerpt")
         pfnn = datasets.build_pfnn_dataset(specs, cache_dir=cache, skip_short=True)
     return lpn, pfnn
 

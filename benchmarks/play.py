@@ -47,11 +47,11 @@ import jax
 import numpy as np
 
 from jaxstyle.control.controller import PFNNModel
-from jaxstyle.data import folders, procedural
+from jaxstyle.data import datasets, folders, procedural
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2018 import fewshot, pipeline
+from jaxstyle.mason2018 import base_model, fewshot, pipeline
 from jaxstyle.mason2022 import pipeline as pipeline2022
 from jaxstyle.mason2022 import styledata
 from jaxstyle.mason2022 import synthesis as synthesis2022
@@ -63,16 +63,16 @@ from jaxstyle.train.defaults import LEARN_EPOCHS
 def demo_size_model(folder: Path, hidden: int = 256, rank: int = 16) -> models.PlayModel:
     """A random PFNN of the demo's size with three random styles, on a procedural clip."""
     root = procedural.write_dataset(folder / "data", ["Neutral"], ["FW"], seconds=6.0)
-    settings = pipeline.BaseSettings(data=str(root), styles=("Neutral",), hidden=hidden, rank=rank, epochs=1)
-    dataset = pipeline.build(folders.clip_specs(root, settings.styles, None), None)
+    settings = base_model.BaseSettings(data=str(root), styles=("Neutral",), hidden=hidden, rank=rank, epochs=1)
+    dataset = base_model.build(folders.clip_specs(root, settings.styles, None), None)
     layout = PFNNLayout((dataset.inputs.shape[1] - 48) // 6)
     config = pfnn.PFNNConfig(input_size=layout.input_size, output_size=layout.output_size, hidden_size=hidden,
                              rank=rank)
     keys = jax.random.split(jax.random.PRNGKey(0), 4)
     params = pfnn.init_pfnn(keys[0], config)
     adapters = [pfnn.init_adapter(k, config) for k in keys[1:]]
-    skeleton = pipeline.datasets.load_clip(dataset.specs[0], fps=60.0)
-    base = pipeline.Base(params, pfnn.stack_adapters(adapters[:1]), dataset.normalisers(), config, dataset, skeleton,
+    skeleton = datasets.load_clip(dataset.specs[0], fps=60.0)
+    base = base_model.Base(params, pfnn.stack_adapters(adapters[:1]), dataset.normalisers(), config, dataset, skeleton,
                          settings)
     styles = {name: models.Style(name, "base", None, a) for name, a in zip(("A", "B", "C"), adapters, strict=True)}
     upm = estimate_units_per_meter(skeleton)
@@ -239,7 +239,7 @@ def learn_benchmark(run: Path, epochs: int) -> None:
                       f"{'met' if float(seconds) <= 30 else 'NOT met'} |", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         clip = _clip(run, 10.0, Path(tmp), "Proud10", "Proud/Proud_FR.bvh")
-        base = pipeline.load_base(run / "base", progress=False)
+        base = base_model.load_base(run / "base", progress=False)
         specs = [dataclasses.replace(s, style="Proud10") for s in folders.user_clip_specs([clip], True, None)]
         cells = []
         for e in (epochs, 40):

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import jaxstyle as js
 from jaxstyle.data import datasets, folders
-from jaxstyle.mason2018 import pipeline
+from jaxstyle.mason2018 import base_model, pipeline
 from jaxstyle.train.scan import DEFAULT_RATES
 
 
@@ -58,7 +58,7 @@ def main() -> None:
         raise SystemExit(f"error: {e}") from None
     mocap = js.mocap_dir()
     t0 = time.perf_counter()
-    base = pipeline.train_base(pipeline.paper_base_settings(mocap, args.base_epochs), args.base, cache=args.cache)
+    base = base_model.train_base(base_model.paper_base_settings(mocap, args.base_epochs), args.base, cache=args.cache)
     print(f"base ready in {time.perf_counter() - t0:.0f} s (this call)")
     specs = user or pipeline.fewshot_specs(mocap / "100style", folders.PAPER_FEWSHOT, args.seconds,
                                            folders.LOCOMOTION_GAITS)

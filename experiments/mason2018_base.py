@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle.data import datasets
+from jaxstyle.data import clips, datasets
 from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, mean_predictor_losses, train, validation_losses
 from jaxstyle.nn import pfnn
 
@@ -43,7 +43,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Config.out)
     args = parser.parse_args()
     mocap = js.mocap_dir()
-    specs = datasets.specs_xia(mocap / "xia") + datasets.specs_pfnn(mocap / "pfnn_excerpt")
+    specs = clips.specs_xia(mocap / "xia") + clips.specs_pfnn(mocap / "pfnn_excerpt")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         dataset = datasets.build_pfnn_dataset(specs, cache_dir=Config.cache, skip_short=True)

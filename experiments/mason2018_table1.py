@@ -27,7 +27,7 @@ import warnings
 import jax
 
 import jaxstyle as js
-from jaxstyle.data import datasets
+from jaxstyle.data import clips, datasets
 from jaxstyle.mason2018 import bench as bench2018
 from jaxstyle.mason2018.train import data_from_dataset
 from jaxstyle.nn import pfnn
@@ -44,7 +44,7 @@ def main() -> None:
     args = parser.parse_args()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        dataset = datasets.build_pfnn_dataset(datasets.specs_xia(js.mocap_dir() / "xia"), skip_short=True)
+        dataset = datasets.build_pfnn_dataset(clips.specs_xia(js.mocap_dir() / "xia"), skip_short=True)
     data = data_from_dataset(dataset)
     styles = [s for s, rows in enumerate(data.train_rows) if len(rows) >= 32]
     sizes = ", ".join(f"{data.styles[s]} {len(data.train_rows[s])}" for s in styles)

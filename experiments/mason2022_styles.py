@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 import jaxstyle as js
-from jaxstyle.data import datasets, folders
+from jaxstyle.data import clips, folders
 from jaxstyle.mason2022 import finetune, pipeline, report
 
 ORDER = ("PFNN One-hot", "LPN One-hot", "PFNN Resad", "LPN Resad", "LPN FiLM", "PFNN FiLM", "MANN FiLM")
@@ -82,7 +82,7 @@ def main() -> None:
             raise folders.PipelineError(f"unknown model(s) {', '.join(unknown)}; Table 2 has {', '.join(ORDER)}")
     except folders.PipelineError as e:
         raise SystemExit(f"error: {e}") from None
-    gaits = datasets.GAITS_100STYLE if (root / "Frame_Cuts.csv").is_file() else None
+    gaits = clips.GAITS_100STYLE if (root / "Frame_Cuts.csv").is_file() else None
     data = pipeline.build_data(root, styles, new_styles, gaits=gaits, cache=args.cache,
                                max_seconds=args.max_seconds, progress=show)
     tune_new = pipeline.MODEL in args.models and args.finetune_steps > 0

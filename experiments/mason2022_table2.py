@@ -96,7 +96,7 @@ def names(text: str) -> tuple[str, ...]:
 
 def train(args) -> None:
     """``--train``: the seven models at the CPU scale, their test losses and closed-loop figures."""
-    from jaxstyle.data import datasets, folders
+    from jaxstyle.data import clips, folders
     from jaxstyle.data.locate import mocap_dir
     from jaxstyle.mason2022 import pipeline, report
     from jaxstyle.mason2022 import synthesis as synthesis2022
@@ -107,7 +107,7 @@ def train(args) -> None:
     styles = [s for s in args.styles or folders.PAPER_BASE if s in folders.available_styles(root)]
     if len(styles) < 1:
         raise SystemExit(f"error: none of the styles {', '.join(args.styles or folders.PAPER_BASE)} is in {root}")
-    gaits = datasets.GAITS_100STYLE if (root / "Frame_Cuts.csv").is_file() else None
+    gaits = clips.GAITS_100STYLE if (root / "Frame_Cuts.csv").is_file() else None
     data = pipeline.build_data(root, styles, gaits=gaits, cache=args.out / "cache", progress=not args.no_progress)
     lines = [f"Table 2 at CPU scale: {', '.join(data.base.styles)}, {int((data.base.split == 0).sum()):,} training "
              f"rows; {args.hidden} hidden units, FiLM generator {args.filters} filters / {args.generator_hidden} dense "

@@ -56,7 +56,7 @@ import jax
 
 import jaxstyle as js
 from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, PipelineError, available_styles
-from jaxstyle.mason2018 import pipeline, sweep_files
+from jaxstyle.mason2018 import base_model, pipeline, sweep_files
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import diagnose, preview, quality, report
 
@@ -115,15 +115,15 @@ def main() -> None:
     base_styles = tuple(s for s in PAPER_BASE if s in have)
     shot_styles = [s for s in PAPER_FEWSHOT if s in have and (root / s / f"{s}_FW.bvh").is_file()]
     if a.small:
-        settings = pipeline.BaseSettings(str(root), base_styles, ("FW", "FR", "ID"), hidden=256, rank=8, epochs=10,
+        settings = base_model.BaseSettings(str(root), base_styles, ("FW", "FR", "ID"), hidden=256, rank=8, epochs=10,
                                          max_seconds=20.0, contacts=not a.no_contacts)
         rates, shot_epochs = (0.3, 0.5), 40
     else:
-        settings = pipeline.BaseSettings(str(root), base_styles, LOCOMOTION_GAITS + ("ID",), hidden=512, rank=30,
+        settings = base_model.BaseSettings(str(root), base_styles, LOCOMOTION_GAITS + ("ID",), hidden=512, rank=30,
                                          epochs=20, contacts=not a.no_contacts)
         rates, shot_epochs = (0.1, 0.3, 0.5, 0.7), 100
     cache = run / "cache"
-    base = pipeline.train_base(settings, run / "base", cache=cache)
+    base = base_model.train_base(settings, run / "base", cache=cache)
     t_base = time.perf_counter() - t0
     sweep_dir = run / "sweep"
     if (sweep_dir / "sweep.json").is_file():

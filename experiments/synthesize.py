@@ -22,7 +22,7 @@ from pathlib import Path
 
 from jaxstyle.control import paths
 from jaxstyle.data import folders
-from jaxstyle.mason2018 import pipeline
+from jaxstyle.mason2018 import base_model, pipeline
 from jaxstyle.output import synthesis
 
 
@@ -50,7 +50,7 @@ def main() -> None:
     if unknown:
         parser.error(f"unknown paths {unknown}; known: {', '.join(paths.PATHS)}")
     try:
-        base = pipeline.load_base(a.base, cache=a.cache)
+        base = base_model.load_base(a.base, cache=a.cache)
         chosen, shots = pipeline.load_sweep(a.sweep, base, cache=a.cache)
         chars = pipeline.characters(base, a.sweep, shots, chosen, base_styles=[a.base_style], fewshot_sets=a.styles,
                                     blend=len(a.styles) >= 2)

@@ -24,7 +24,7 @@ _SUBPACKAGES = ["cli", "control", "data", "labels", "mason2018", "mason2022", "m
                 "errors", "timing"]
 
 _NAMES = {
-    "BaseSettings": "mason2018.pipeline",
+    "BaseSettings": "mason2018.base_model",
     "Character": "output.drive",
     "CharacterModel": "control.model",
     "CharacterFrames": "motion.character_frame",
@@ -115,7 +115,7 @@ _NAMES = {
     "step_fn": "control.model",
     "sweep_batches": "train.scan",
     "synthesize": "output.synthesis",
-    "train_base": "mason2018.pipeline",
+    "train_base": "mason2018.base_model",
     "turning_path": "control.loop",
     "write_bvh": "motion.bvh",
     "write_report": "mason2018.sweep_files",

@@ -19,7 +19,7 @@ from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.control.model import CharacterModel, Frames, rollout, rollout_batch
 from jaxstyle.data import datasets, folders, procedural
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2018 import pipeline
+from jaxstyle.mason2018 import base_model
 from jaxstyle.motion.bvh import read_bvh
 from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.output import drive, quality, synthesis
@@ -92,7 +92,7 @@ def toy_model(skeleton) -> ToyModel:
 def data(tmp_path_factory):
     root = procedural.write_dataset(tmp_path_factory.mktemp("toy") / "data", ["Neutral", "Crouched"], ["FW"],
                                     seconds=6.0, progress=False)
-    dataset = pipeline.build(folders.clip_specs(root, ("Neutral", "Crouched"), None), None)
+    dataset = base_model.build(folders.clip_specs(root, ("Neutral", "Crouched"), None), None)
     skeleton = datasets.load_clip(dataset.specs[0], fps=60.0)
     chars = [drive.Character(f"{s} toy", s, 1.0, dataset, s) for s in dataset.styles]
     return dataset, skeleton, chars

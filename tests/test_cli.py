@@ -20,7 +20,7 @@ import pytest
 
 import jaxstyle as js
 from jaxstyle import cli
-from jaxstyle.data import datasets
+from jaxstyle.data import clips
 
 # the tiny few-shot clips hold fewer rows than a cycle's worth for validation; selection says so
 pytestmark = pytest.mark.filterwarnings("ignore:style .* the last 1 cycle:UserWarning")
@@ -53,7 +53,7 @@ def demo_run(tmp_path_factory, tiny_data) -> Path:
 
 
 def test_data_generate_writes_the_100style_layout(tiny_data):
-    specs = datasets.specs_100style(tiny_data)
+    specs = clips.specs_100style(tiny_data)
     assert {s.style for s in specs} == {"Neutral", "Crouched", "Limping"}
     assert {s.gait for s in specs} == {"FW", "FR"}
     # Limping is asymmetric: not mirrored; the others are
@@ -359,12 +359,12 @@ def test_a_set_that_failed_every_check_is_refused_unless_allowed(demo_run, tmp_p
     refuses it with one line naming the set and the figure, and uses it, marked, with --allow-failed."""
     import shutil
 
-    from jaxstyle.mason2018 import fewshot, pipeline, selection, sweep_files
+    from jaxstyle.mason2018 import base_model, fewshot, pipeline, selection, sweep_files
     from jaxstyle.train import scan
 
     run = tmp_path / "run"
     shutil.copytree(demo_run, run)
-    base = pipeline.load_base(run / "base", cache=run / "cache", progress=False)
+    base = base_model.load_base(run / "base", cache=run / "cache", progress=False)
     _, shots = pipeline.load_sweep(run / "sweep", base, cache=run / "cache")
     config = fewshot.SweepConfig(model=base.model, rates=(0.3, 0.5), epochs=1)
     impossible = selection.RolloutCheck(max_bone_error=-1.0)

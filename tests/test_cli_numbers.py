@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from jaxstyle.cli.common import finite
+from jaxstyle.cli.args import finite
 from jaxstyle.cli.main import build_parser, main
 
 

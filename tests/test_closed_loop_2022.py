@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxstyle.control import lpn_controller
+from jaxstyle.control import lpn_controller, lpn_phases
 from jaxstyle.data.datasets import consecutive_rows
 from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.mason2022 import loss as lpn_loss
@@ -48,9 +48,9 @@ def test_next_rows_and_rollout_starts_match_a_loop():
 @pytest.fixture(scope="module")
 def real(mocap, tmp_path_factory):
     import jaxstyle as js
-    from jaxstyle.data import datasets
+    from jaxstyle.data import clips, datasets
 
-    specs = [s for s in datasets.specs_100style(mocap / "100style", styles=["Neutral", "Rushed"]) if s.gait == "FW"]
+    specs = [s for s in clips.specs_100style(mocap / "100style", styles=["Neutral", "Rushed"]) if s.gait == "FW"]
     ds = datasets.build_lpn_dataset(specs, cache_dir=tmp_path_factory.mktemp("cache"))
     return ds, js.read_bvh(specs[0].path)
 
@@ -127,13 +127,13 @@ def test_rollout_loss_feeds_the_network_what_the_runtime_would(real):
 def test_floored_phases():
     p0 = np.array([0.0, 1.0, 0.0, 2.0, 1e-9, 0.0, 0.0, 1.0], np.float32)  # (sin, cos) per limb
     fast = np.array([np.sin(0.3), np.cos(0.3), 0.0, 2.0, 0.0, 1.0, 0.0, 1.0], np.float32)
-    out = np.asarray(lpn_controller.floored_phases(jnp.asarray(p0), jnp.asarray(fast), 0.02))
+    out = np.asarray(lpn_phases.floored_phases(jnp.asarray(p0), jnp.asarray(fast), 0.02))
     a = 2 * np.pi * 0.02
     np.testing.assert_allclose(out[:2], fast[:2], atol=1e-7)  # advanced 0.048 cycles > floor: kept
     np.testing.assert_allclose(out[2:4], [2 * np.sin(a), 2 * np.cos(a)], atol=1e-6)  # stalled: moved on
     np.testing.assert_allclose(out[4:6], fast[4:6])  # no angle to move on: kept
     np.testing.assert_allclose(out[6:8], [np.sin(a), np.cos(a)], atol=1e-6)
-    np.testing.assert_array_equal(np.asarray(lpn_controller.floored_phases(jnp.asarray(p0), jnp.asarray(fast), 0.0)),
+    np.testing.assert_array_equal(np.asarray(lpn_phases.floored_phases(jnp.asarray(p0), jnp.asarray(fast), 0.0)),
                                   fast)
 
 
@@ -169,8 +169,8 @@ def test_a_tiny_lpn_on_a_periodic_gait_keeps_stepping_for_10_s(tmp_path):
         assert phases.shape[1] == 600
         if floor:  # every second of the 10 s advances: no late stall
             for c, name in enumerate(styles):
-                capture = lpn_controller.capture_phase_rate(data.base, name)
-                per_frame = lpn_controller.local_phase_advance(phases[c, :-1], phases[c, 1:])
+                capture = lpn_phases.capture_phase_rate(data.base, name)
+                per_frame = lpn_phases.local_phase_advance(phases[c, :-1], phases[c, 1:])
                 per_second = per_frame[: 540].reshape(9, 60).sum(axis=1) / 60
                 assert per_second.min() >= 0.7 * capture, (name, per_second / capture)
     for name in styles:

@@ -11,7 +11,8 @@ import jaxstyle as js
 from jaxstyle.control import controller, loop
 from jaxstyle.control.controller import PFNNModel
 from jaxstyle.control.model import rollout
-from jaxstyle.data.datasets import ClipSpec, load_clip
+from jaxstyle.data.clips import ClipSpec
+from jaxstyle.data.datasets import load_clip
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.motion import kinematics
 from jaxstyle.motion.character_frame import CharacterFrames, rotate_yaw, to_local

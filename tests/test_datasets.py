@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
+from jaxstyle.data import clips as C
 from jaxstyle.data import datasets as D
 from jaxstyle.data.batching import balanced_batches
 from jaxstyle.data.normalise import fit_normaliser
 
 
 def test_specs_100style_cuts_and_mirrors_symmetric_styles(mocap, tmp_path):
-    specs = D.specs_100style(mocap / "100style")
+    specs = C.specs_100style(mocap / "100style")
     gaits = {(s.style, s.gait) for s in specs}
     assert ("Angry", "FW") in gaits and ("Neutral", "TR1") in gaits
     assert len(gaits) == len(list((mocap / "100style").glob("*/*.bvh")))  # every file has cuts
@@ -31,11 +32,11 @@ def test_specs_100style_cuts_and_mirrors_symmetric_styles(mocap, tmp_path):
     text = (mocap / "100style/Dataset_List.csv").read_text(encoding="utf-8-sig")
     angry = next(line for line in text.splitlines() if line.startswith("Angry,"))
     (root / "Dataset_List.csv").write_text(text.replace(angry, angry.replace(",Yes,", ",No,", 1)))
-    assert not any(s.mirror for s in D.specs_100style(root))
+    assert not any(s.mirror for s in C.specs_100style(root))
 
 
 def test_lpn_dataset_layout_split_stats_and_cache(mocap, tmp_path):
-    specs = [s for s in D.specs_100style(mocap / "100style", styles=["Neutral", "Rushed"]) if s.gait in ("FW", "ID")]
+    specs = [s for s in C.specs_100style(mocap / "100style", styles=["Neutral", "Rushed"]) if s.gait in ("FW", "ID")]
     ds = D.build_lpn_dataset(specs, cache_dir=tmp_path)
     assert ds.inputs.shape[1:] == (348,) and ds.outputs.shape[1:] == (342,) and ds.phases.shape[1:] == (8,)
     assert ds.clips.shape[1:] == (240, 300) and len(ds.clip_style) == len(ds.clips)
@@ -77,7 +78,7 @@ def test_changed_file_rebuilds(mocap, tmp_path):
     folder = tmp_path / "clips"
     folder.mkdir()
     shutil.copy(src, folder / "neutral_01_000.bvh")
-    specs = D.specs_xia(folder, mirror=False)
+    specs = C.specs_xia(folder, mirror=False)
     first = D.build_pfnn_dataset(specs, cache_dir=tmp_path / "cache")
     text = (folder / "neutral_01_000.bvh").read_text()
     head, motion = text.split("MOTION", 1)
@@ -93,8 +94,8 @@ def test_changed_file_rebuilds(mocap, tmp_path):
 
 
 def test_pfnn_dataset_from_xia_and_labelled_captures(mocap):
-    xia = [s for s in D.specs_xia(mocap / "xia") if s.path.endswith("_01_000.bvh")]
-    pfnn = D.specs_pfnn(mocap / "pfnn_excerpt")
+    xia = [s for s in C.specs_xia(mocap / "xia") if s.path.endswith("_01_000.bvh")]
+    pfnn = C.specs_pfnn(mocap / "pfnn_excerpt")
     with pytest.raises(js.MotionDataError, match="NewCaptures02_000.bvh.*shorter than the trajectory window"):
         D.build_pfnn_dataset(xia + pfnn)
     with pytest.warns(UserWarning, match="skipped"):
@@ -112,10 +113,10 @@ def test_pfnn_dataset_from_xia_and_labelled_captures(mocap):
 
 def test_style_mapping_errors(mocap):
     with pytest.raises(ValueError, match="name no file"):
-        D.specs_from_folder(mocap / "xia", styles={"angry_01_000.bvh": "angry", "nope.bvh": "ghost"})
+        C.specs_from_folder(mocap / "xia", styles={"angry_01_000.bvh": "angry", "nope.bvh": "ghost"})
     with pytest.raises(ValueError, match="exactly one"):
-        D.specs_from_folder(mocap / "xia")
-    specs = D.specs_from_folder(mocap / "xia", pattern=r"(?P<style>[a-z]+)_01_000")
+        C.specs_from_folder(mocap / "xia")
+    specs = C.specs_from_folder(mocap / "xia", pattern=r"(?P<style>[a-z]+)_01_000")
     assert len(specs) == 8 and not any(s.mirror for s in specs)
 
 
@@ -127,8 +128,8 @@ def test_a_skeleton_without_hands_is_refused(mocap):
 
 
 def test_few_shot_style_is_normalised_with_base_statistics(mocap):
-    base = D.build_pfnn_dataset([s for s in D.specs_xia(mocap / "xia") if "_01_" in s.path and "neutral" in s.path])
-    few = D.build_pfnn_dataset([s for s in D.specs_xia(mocap / "xia") if "_01_" in s.path and "proud" in s.path])
+    base = D.build_pfnn_dataset([s for s in C.specs_xia(mocap / "xia") if "_01_" in s.path and "neutral" in s.path])
+    few = D.build_pfnn_dataset([s for s in C.specs_xia(mocap / "xia") if "_01_" in s.path and "proud" in s.path])
     x, y = few.normalised(base)
     x_norm, y_norm = base.normalisers()
     np.testing.assert_allclose(x, (few.inputs - x_norm.mean) / x_norm.std, rtol=1e-5, atol=1e-5)

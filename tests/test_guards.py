@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
+from jaxstyle.data import clips as C
 from jaxstyle.data import datasets as D
 from jaxstyle.train.checkpoint import Checkpointer
 from tests.toy_fit import toy_fit
@@ -50,7 +51,7 @@ def test_absurd_root_value_is_refused_naming_the_file_and_frame(mocap, tmp_path)
             lines[i] = " ".join(values)
 
     path = _xia_copy(mocap, tmp_path / "clips", edit=absurd)
-    specs = D.specs_xia(path.parent, mirror=False)
+    specs = C.specs_xia(path.parent, mirror=False)
     for build in (D.build_pfnn_dataset, D.build_lpn_dataset):
         # refused by the reader (line of the file) or by the builder (frame of the file)
         with pytest.raises(js.MotionDataError, match=r"(frame 197 .*Hips|row 198 ).*1e\+?300") as info:
@@ -58,7 +59,7 @@ def test_absurd_root_value_is_refused_naming_the_file_and_frame(mocap, tmp_path)
         assert info.value.path == str(path) and str(path) in str(info.value)
     assert not list((tmp_path / "cache").glob("*.npz"))  # nothing cached
     # the builder's own guard, whatever the reader lets through
-    spec = D.ClipSpec(str(path), "neutral", start=10)
+    spec = C.ClipSpec(str(path), "neutral", start=10)
     motion = js.read_bvh(mocap / "xia/neutral_01_000.bvh").frames(10, 300)
     positions = motion.local_positions.copy()
     positions[187:191, 0, 0] = 1e300
@@ -72,7 +73,7 @@ def test_absurd_root_value_is_refused_naming_the_file_and_frame(mocap, tmp_path)
 
 
 def test_non_finite_feature_rows_are_refused_naming_the_file_and_frame():
-    spec = D.ClipSpec("clip.bvh", "walk", start=100)
+    spec = C.ClipSpec("clip.bvh", "walk", start=100)
     rows = np.zeros((5, 4))
     rows[3, 2] = np.nan
     with pytest.raises(js.MotionDataError, match=r"clip.bvh: the row of frame 106 .*not finite"):
@@ -83,7 +84,7 @@ def test_non_finite_feature_rows_are_refused_naming_the_file_and_frame():
 
 
 def test_a_cache_holding_nan_is_built_again(mocap, tmp_path):
-    specs = D.specs_xia(_xia_copy(mocap, tmp_path / "clips").parent, mirror=False)
+    specs = C.specs_xia(_xia_copy(mocap, tmp_path / "clips").parent, mirror=False)
     good = D.build_pfnn_dataset(specs, cache_dir=tmp_path / "cache")
     (path,) = (tmp_path / "cache").glob("pfnn-*.npz")
     with np.load(path) as data:
@@ -98,8 +99,8 @@ def test_a_cache_holding_nan_is_built_again(mocap, tmp_path):
 
 
 def test_mixed_skeletons_are_refused_naming_both_files(mocap):
-    xia = D.ClipSpec(str(mocap / "xia/neutral_01_000.bvh"), "neutral")
-    other = D.ClipSpec(str(mocap / "100style/Neutral/Neutral_FW.bvh"), "Neutral", 0, 900)
+    xia = C.ClipSpec(str(mocap / "xia/neutral_01_000.bvh"), "neutral")
+    other = C.ClipSpec(str(mocap / "100style/Neutral/Neutral_FW.bvh"), "Neutral", 0, 900)
     joints = (len(js.read_bvh(xia.path).names), len(js.read_bvh(other.path).names))
     assert joints[0] != joints[1]
     with pytest.raises(js.MotionDataError) as info:
@@ -110,9 +111,9 @@ def test_mixed_skeletons_are_refused_naming_both_files(mocap):
 
 
 def test_a_short_clip_warns_and_a_style_left_without_clips_is_an_error(mocap, caplog):
-    long_clip = D.ClipSpec(str(mocap / "xia/neutral_01_000.bvh"), "neutral")
-    short = D.ClipSpec(str(mocap / "xia/angry_13_000.bvh"), "angry")  # 70 frames at 60 fps
-    short_neutral = D.ClipSpec(str(mocap / "xia/angry_13_000.bvh"), "neutral")
+    long_clip = C.ClipSpec(str(mocap / "xia/neutral_01_000.bvh"), "neutral")
+    short = C.ClipSpec(str(mocap / "xia/angry_13_000.bvh"), "angry")  # 70 frames at 60 fps
+    short_neutral = C.ClipSpec(str(mocap / "xia/angry_13_000.bvh"), "neutral")
     # the style's only clip is too short: an error naming the style, the clip, its length and the minimum
     with pytest.raises(js.MotionDataError, match=r"'angry'.*angry_13_000.bvh \(70 frames, needs 112\)"), \
             pytest.warns(UserWarning, match="skipped"):

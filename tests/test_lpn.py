@@ -351,9 +351,9 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
 
 @pytest.fixture(scope="module")
 def real_data(mocap, tmp_path_factory):
-    from jaxstyle.data import datasets
+    from jaxstyle.data import clips, datasets
 
-    specs = [s for s in datasets.specs_100style(mocap / "100style", styles=["Neutral", "Rushed"]) if s.gait == "FW"]
+    specs = [s for s in clips.specs_100style(mocap / "100style", styles=["Neutral", "Rushed"]) if s.gait == "FW"]
     ds = datasets.build_lpn_dataset(specs, cache_dir=tmp_path_factory.mktemp("cache"))
     skeleton = js.read_bvh(specs[0].path)
     return ds, skeleton

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from jaxstyle import cli
-from jaxstyle.control import loop, lpn_controller
+from jaxstyle.control import loop, lpn_controller, lpn_phases
 from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.control.model import rollout
 from jaxstyle.data import procedural
@@ -91,7 +91,7 @@ def test_film_sweep_from_a_user_clip_chooses_a_rate_and_writes_its_generator(fol
     fps = data.skeleton.fps
     y = data.new.outputs[rows]
     speed = float(np.median(np.hypot(y[:, 0], y[:, 6]))) * fps
-    floor = PHASE_FLOOR * lpn_controller.capture_phase_rate(data.new, "Limping_FW")  # the default runtime's
+    floor = PHASE_FLOOR * lpn_phases.capture_phase_rate(data.new, "Limping_FW")  # the default runtime's
     state = lpn_controller.initial_state(data.new.inputs[start], data.new.phases[start],
                                          len(bone_points(data.skeleton)[0]), phase_floor=floor)
     controls = loop.turning_path(int(round(5 * fps)), speed, np.deg2rad(45.0), fps)

@@ -19,11 +19,12 @@ import pytest
 
 import jaxstyle as js
 from jaxstyle.cli.main import main
-from jaxstyle.control import loop, lpn_controller, paths
+from jaxstyle.control import loop, lpn_controller, lpn_phases, paths
 from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.control.model import rollout, rollout_batch, step_fn
 from jaxstyle.data import datasets
-from jaxstyle.data.datasets import ClipSpec, load_clip, style_rows
+from jaxstyle.data.clips import ClipSpec
+from jaxstyle.data.datasets import load_clip, style_rows
 from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.labels.contacts import estimate_units_per_meter
@@ -49,8 +50,8 @@ def test_teacher_forced_global_phase_advances_as_the_labels(walk):
     num_bones = len(f.bones)
     y = f.outputs
     assert np.all(np.diff(f.frames) == 1)
-    omega = lpn_controller.predicted_advance(y, num_bones)
-    ratio = lpn_controller.global_phase_ratio(f.global_phase, omega, np.zeros(len(y), int), f.frames)
+    omega = lpn_phases.predicted_advance(y, num_bones)
+    ratio = lpn_phases.global_phase_ratio(f.global_phase, omega, np.zeros(len(y), int), f.frames)
     assert 0.3 < ratio < 1.0  # 100STYLE's local phases turn faster than the stride (module docstring)
     state = lpn_controller.initial_state(f.inputs[0], f.phases[0], num_bones, f.global_phase[0], ratio)
     step = jax.jit(lambda s, yi, stand: lpn_controller.advance(s, yi, num_bones, stand))
@@ -183,7 +184,7 @@ def test_pfnn_backbone_is_evaluated_at_the_carried_global_phase(walk):
     phi = np.concatenate([[float(st.global_phase)], np.asarray(one.global_phase)])
     assert np.all((phi >= 0) & (phi < 1))
     adv = np.mod(np.diff(phi), 1.0)
-    omega = np.asarray(lpn_controller.predicted_advance(one.outputs, num_bones))
+    omega = np.asarray(lpn_phases.predicted_advance(one.outputs, num_bones))
     np.testing.assert_allclose(adv, 0.8 * np.maximum(omega, 0.0), atol=1e-5)
     np.testing.assert_allclose(adv, 0.8 * 0.01, rtol=0.05)  # it advances at the ratio times the local advance
     stack = lambda items: jax.tree.map(lambda *v: jnp.stack([jnp.asarray(a) for a in v]), *items)  # noqa: E731
@@ -241,12 +242,12 @@ def _neutral(loaded):
 @pytest.mark.slow
 def test_trained_pfnn_backbone_keeps_its_phase_near_the_data_rate(loaded):
     """Closed loop on a straight walk at the style's speed, the phase's rate fitted on the style's
-    rows (:func:`lpn_controller.phase_ratio`): the global phase advances every frame at 0.5-1.5
+    rows (:func:`lpn_phases.phase_ratio`): the global phase advances every frame at 0.5-1.5
     times the labelled walk's rate (a tiny model runs at ~0.6; the trained Table 2 PFNN FiLM of
     docs/mason2022.md at 0.8-1.05)."""
     model, ds, char, upm, rows, speed, row = _neutral(loaded)
     x_norm, y_norm = ds.normalisers()
-    ratio = lpn_controller.phase_ratio(model.params, model.config, char.conditioning, x_norm, y_norm, ds, rows)
+    ratio = lpn_phases.phase_ratio(model.params, model.config, char.conditioning, x_norm, y_norm, ds, rows)
     character = loaded.character_model()
     state = character.initial_state(ds, row, char.conditioning)
     assert float(state.phase_ratio) == pytest.approx(ratio, rel=1e-6)  # the character's start fits the same rate

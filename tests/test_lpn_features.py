@@ -108,11 +108,11 @@ def test_rows_carry_the_labellers_global_phase(mocap):
 def test_lpn_dataset_global_phase_equals_the_labeller_on_the_same_frames(tmp_path):
     """Built (and reloaded from its cache), an LPN dataset's ``global_phase`` equals the labeller
     run on each clip (mirrored copies included) at each row's frame; the local phases stay 8 columns."""
-    from jaxstyle.data import datasets, procedural
+    from jaxstyle.data import clips, datasets, procedural
     from jaxstyle.mason2022 import styledata
 
     root = procedural.write_dataset(tmp_path / "p", ["Neutral", "Limping"], ("FW",), seconds=8)
-    specs = datasets.specs_100style(root, gaits=("FW",))
+    specs = clips.specs_100style(root, gaits=("FW",))
     assert any(s.mirror for s in specs)
     for _ in range(2):  # built, then from the cache
         ds = datasets.build_lpn_dataset(specs, cache_dir=tmp_path / "cache")

@@ -19,16 +19,16 @@ import jax
 import numpy as np
 import pytest
 
-from jaxstyle.control import loop, lpn_controller
+from jaxstyle.control import loop, lpn_phases
 from jaxstyle.control.controller import PFNNModel
 from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.control.model import step_fn
-from jaxstyle.data import folders, procedural
+from jaxstyle.data import datasets, folders, procedural
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2018 import pipeline
+from jaxstyle.mason2018 import base_model
 from jaxstyle.mason2022 import finetune as finetune2022
 from jaxstyle.mason2022 import pipeline as pipeline2022
 from jaxstyle.mason2022 import styledata
@@ -49,8 +49,8 @@ def tiny_model(folder: Path, styles=STYLES, seconds: float = 6.0, hidden: int = 
     """A :class:`PlayModel` with a random PFNN (no training) on procedural clips written to ``folder``;
     the adapters are random too, so the styles differ."""
     root = procedural.write_dataset(folder / "data", list(styles), ["FW"], seconds=seconds)
-    settings = pipeline.BaseSettings(data=str(root), styles=tuple(styles), hidden=hidden, rank=rank, epochs=1)
-    dataset = pipeline.build(folders.clip_specs(root, settings.styles, None), None)
+    settings = base_model.BaseSettings(data=str(root), styles=tuple(styles), hidden=hidden, rank=rank, epochs=1)
+    dataset = base_model.build(folders.clip_specs(root, settings.styles, None), None)
     layout = PFNNLayout((dataset.inputs.shape[1] - 48) // 6)
     config = pfnn.PFNNConfig(input_size=layout.input_size, output_size=layout.output_size, hidden_size=hidden,
                              rank=rank)
@@ -58,8 +58,8 @@ def tiny_model(folder: Path, styles=STYLES, seconds: float = 6.0, hidden: int = 
     params = pfnn.init_pfnn(keys[0], config)
     adapters = pfnn.stack_adapters([pfnn.init_adapter(k, config) for k in keys[1:]])
     adapters["b"] = adapters["b"] + 0.1 * jax.random.normal(keys[0], adapters["b"].shape)
-    skeleton = pipeline.datasets.load_clip(dataset.specs[0], fps=60.0)
-    base = pipeline.Base(params, adapters, dataset.normalisers(), config, dataset, skeleton, settings)
+    skeleton = datasets.load_clip(dataset.specs[0], fps=60.0)
+    base = base_model.Base(params, adapters, dataset.normalisers(), config, dataset, skeleton, settings)
     named = {s: models.Style(s, "base", None, jax.tree.map(lambda v, i=i: v[i], adapters))
              for i, s in enumerate(dataset.styles)}
     upm = estimate_units_per_meter(skeleton)
@@ -538,7 +538,7 @@ def test_lpn_steering_reaches_the_network_input(lpn_model, tmp_path):
 def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lpn_model):
     """Table 2's PFNN FiLM (the network evaluated at a carried global phase): each character's
     state carries its style's rate of global to local phase advance
-    (:func:`jaxstyle.control.lpn_controller.phase_ratio`, computed here directly); a style switch
+    (:func:`jaxstyle.control.lpn_phases.phase_ratio`, computed here directly); a style switch
     replaces it, a blend's FiLM vector plays, and the step equals ``step_fn`` without recompiling."""
     data = lpn_model.loaded.data
     config = pipeline2022.model_config(data.base, "PFNN FiLM", hidden=8, generator_hidden=16, filters=4)
@@ -549,7 +549,7 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
     x_norm, y_norm = data.base.normalisers()
 
     def ratio(runtime, name):
-        return lpn_controller.phase_ratio(model.params, config, runtime, x_norm, y_norm, data.base,
+        return lpn_phases.phase_ratio(model.params, config, runtime, x_norm, y_norm, data.base,
                                           style_rows(data.base, name))
 
     want = {n: ratio(m.styles[n].conditioning, n) for n in ("Neutral", "Crouched")}

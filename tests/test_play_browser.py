@@ -228,10 +228,10 @@ def test_learn_a_style_live_and_record(browser, tmp_path):
     """A trained tiny base in a run folder: learn a style from an uploaded clip while the
     character walks, pick it from the dropdown, record BVH + GIF."""
     from jaxstyle.data import procedural
-    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.mason2018 import base_model
 
     root = procedural.write_dataset(tmp_path / "run" / "data", ["Neutral", "Crouched", "Proud"], ["FW"], seconds=10)
-    pipeline.train_base(pipeline.BaseSettings(data=str(root), styles=("Neutral", "Crouched"), hidden=32, rank=4,
+    base_model.train_base(base_model.BaseSettings(data=str(root), styles=("Neutral", "Crouched"), hidden=32, rank=4,
                                               epochs=2), tmp_path / "run" / "base", progress=False, log=lambda _: None)
     server = PlayServer(tmp_path / "run", port=free_port(), learn_epochs=2).start()
     try:

@@ -15,7 +15,7 @@ import pytest
 
 import jaxstyle as js
 from jaxstyle.data import procedural as P
-from jaxstyle.data.datasets import specs_100style
+from jaxstyle.data.clips import specs_100style
 from jaxstyle.labels.contacts import runs
 from jaxstyle.labels.phase import circular_distance
 

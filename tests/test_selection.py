@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaxstyle.data import datasets
-from jaxstyle.data.datasets import ClipSpec
+from jaxstyle.data.clips import ClipSpec
 from jaxstyle.mason2018 import fewshot, selection, sweep_files
 from jaxstyle.nn import pfnn
 from jaxstyle.output import check as check_lib

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import jaxstyle as js
-from jaxstyle.data import datasets
+from jaxstyle.data import clips, datasets
 from jaxstyle.motion.character_frame import rotate_yaw
 from jaxstyle.motion.skeleton import find_feet_and_hands
 from jaxstyle.output import style
@@ -16,7 +16,7 @@ from jaxstyle.output import style
 
 @pytest.fixture(scope="module")
 def walk(mocap):
-    spec = next(s for s in datasets.specs_100style(mocap / "100style", styles=["Neutral"], gaits=("FW",))
+    spec = next(s for s in clips.specs_100style(mocap / "100style", styles=["Neutral"], gaits=("FW",))
                 if not s.mirror)
     clip = datasets.load_clip(spec, fps=60.0)
     return clip, js.global_positions(clip), js.estimate_units_per_meter(clip)

@@ -14,7 +14,8 @@ from jaxstyle.control import controller, loop, lpn_controller, paths
 from jaxstyle.control.controller import PFNNModel
 from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.control.model import rollout, rollout_batch, step_fn
-from jaxstyle.data.datasets import ClipSpec, load_clip
+from jaxstyle.data.clips import ClipSpec
+from jaxstyle.data.datasets import load_clip
 from jaxstyle.data.lpn_features import bone_points
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.motion import kinematics
@@ -289,12 +290,12 @@ def trained_pfnn(mocap):
     (walk, run, turns, idle, mirrored): about 4,300 rows, under a minute on 2 CPU cores."""
     import warnings
 
-    from jaxstyle.data import datasets
+    from jaxstyle.data import clips, datasets
     from jaxstyle.mason2018.train import TrainConfig, data_from_dataset, train
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # short clips are skipped with a warning
-        specs = datasets.specs_100style(mocap / "100style", styles=["Neutral"])
+        specs = clips.specs_100style(mocap / "100style", styles=["Neutral"])
         dataset = datasets.build_pfnn_dataset(specs, skip_short=True)
     layout = js.PFNNLayout((dataset.inputs.shape[1] - 48) // 6)
     model = pfnn.PFNNConfig(input_size=layout.input_size, hidden_size=128, output_size=layout.output_size, rank=8)

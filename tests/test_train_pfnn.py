@@ -87,10 +87,10 @@ def test_base_model_on_the_shared_sample_learns(mocap):
     well below predicting the mean (experiments/mason2018_base.py runs the long version)."""
     import warnings
 
-    from jaxstyle.data import datasets
+    from jaxstyle.data import clips, datasets
     from jaxstyle.mason2018.train import data_from_dataset
 
-    specs = datasets.specs_xia(mocap / "xia") + datasets.specs_pfnn(mocap / "pfnn_excerpt")
+    specs = clips.specs_xia(mocap / "xia") + clips.specs_pfnn(mocap / "pfnn_excerpt")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         dataset = datasets.build_pfnn_dataset(specs, skip_short=True)

@@ -2,7 +2,8 @@
 
 * :mod:`~jaxstyle.cli.main`: the parser, ``--config`` TOML files, one-line errors (``--debug``: the
   traceback), :func:`main` and the console script's :func:`entry_point`;
-* :mod:`~jaxstyle.cli.common`: the run folder (:class:`Run`), shared argument groups and helpers;
+* :mod:`~jaxstyle.cli.common`: the run folder (:class:`Run`), one-line path errors, helpers;
+* :mod:`~jaxstyle.cli.args`: the parser with one-line errors, shared argument groups, value checks;
 * one module per command, each argument parsing and a thin call into a pipeline
   (:mod:`jaxstyle.mason2018.pipeline`, :mod:`jaxstyle.mason2022.pipeline`): :mod:`~jaxstyle.cli.demo`,
   :mod:`~jaxstyle.cli.data` (generate, fetch, prepare), :mod:`~jaxstyle.cli.train_base`,

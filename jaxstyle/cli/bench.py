@@ -3,7 +3,8 @@
 
 from __future__ import annotations
 
-from jaxstyle.cli.common import SWEEP_RATES, Run, add_common, check_positive, check_rates, finite, machine
+from jaxstyle.cli.args import SWEEP_RATES, add_common, check_positive, check_rates, finite
+from jaxstyle.cli.common import Run, machine
 
 NAME = "bench"
 HELP = "time the few-shot sweep against a loop of single runs, and the network"
@@ -27,14 +28,14 @@ def add_arguments(p) -> None:
 def run(args, run: Run) -> None:
     import jax
 
+    from jaxstyle.mason2018 import base_model
     from jaxstyle.mason2018 import bench as bench2018
-    from jaxstyle.mason2018 import pipeline
     from jaxstyle.nn import pfnn
 
     check_positive(args, "sets", "frames", "sweep_epochs", "hidden")
     check_rates(args.rates)
     if (run.dir / "base" / "base.json").is_file():
-        base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache", progress=False)
+        base = base_model.load_base(run.dir / "base", cache=run.dir / "cache", progress=False)
         model, params, what = base.model, base.params, f"the base of {run.dir / 'base'}"
     else:
         model = pfnn.PFNNConfig(hidden_size=args.hidden)

@@ -6,18 +6,8 @@ import time
 import warnings
 from pathlib import Path
 
-from jaxstyle.cli.common import (
-    DATA_HELP,
-    Run,
-    add_common,
-    add_joint_map_arg,
-    check_positive,
-    elapsed,
-    ensure_folder,
-    finite,
-    joint_map,
-    progress,
-)
+from jaxstyle.cli.args import add_common, add_joint_map_arg, check_positive, finite, joint_map
+from jaxstyle.cli.common import DATA_HELP, Run, elapsed, ensure_folder, progress
 
 NAME = "data"
 HELP = "make, download or inspect motion data"
@@ -94,13 +84,13 @@ def fetch(args, run: None) -> None:
 
 def prepare(args, run: Run) -> None:
     from jaxstyle.data import datasets, folders
-    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.mason2018 import base_model, pipeline
 
     root = folders.style_root(args.data)
     styles = tuple(args.styles) if args.styles else folders.available_styles(root)
     specs = folders.clip_specs(root, styles, args.gaits, args.max_seconds, joint_map(args))
     t0 = time.perf_counter()
-    ds = pipeline.build(specs, run.dir / "cache", progress(args))
+    ds = base_model.build(specs, run.dir / "cache", progress(args))
     run.say(f"PFNN rows of {root}: {len(ds.inputs):,} rows x {ds.inputs.shape[1]} inputs -> {ds.outputs.shape[1]} "
             f"outputs from {len(ds.specs)} clips ({elapsed(t0)}; cached in {run.dir / 'cache'})")
     for line in pipeline.style_table(ds):

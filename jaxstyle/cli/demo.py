@@ -7,24 +7,17 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from jaxstyle.cli.common import (
-    DATA_HELP,
-    DEMO_RUN,
-    CLIError,
-    Run,
+from jaxstyle.cli.args import (
     add_base_args,
     add_common,
     add_sweep_args,
     add_synth_args,
     check_positive,
     check_synthesis,
-    elapsed,
     finite,
     joint_map,
-    machine,
-    progress,
-    written,
 )
+from jaxstyle.cli.common import DATA_HELP, DEMO_RUN, CLIError, Run, elapsed, machine, progress, written
 from jaxstyle.cli.sweep import sweep_and_report
 from jaxstyle.cli.synthesize import synthesize_and_report, synthesize_lpn_and_report
 from jaxstyle.cli.train_base import base_settings
@@ -219,7 +212,7 @@ def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
 
 
 def run(args, run: Run) -> None:
-    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.mason2018 import base_model, pipeline
 
     t_all = time.perf_counter()
     check_positive(args, "seconds", "synth_seconds", "data_seconds", "speed")
@@ -231,7 +224,7 @@ def run(args, run: Run) -> None:
         return run_lpn(args, run, root, t_all)
     settings, held_out = base_settings(args, root)
     t0 = time.perf_counter()
-    base = pipeline.train_base(settings, run.dir / "base", cache=run.dir / "cache", progress=progress(args),
+    base = base_model.train_base(settings, run.dir / "base", cache=run.dir / "cache", progress=progress(args),
                                log=run.say)
     run.say(f"base ready ({elapsed(t0)})")
     specs = pipeline.fewshot_specs(root, held_out, args.seconds, settings.gaits, settings.joint_map)

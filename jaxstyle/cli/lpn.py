@@ -8,23 +8,17 @@ import tempfile
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import (
-    DATA_HELP,
-    CLIError,
+from jaxstyle.cli.args import (
     LazyDefault,
-    Run,
     add_common,
     add_distributed_args,
     add_joint_map_arg,
     check_positive,
-    elapsed,
     finite,
     joint_map,
-    machine,
     non_negative,
-    progress,
-    written,
 )
+from jaxstyle.cli.common import DATA_HELP, CLIError, Run, elapsed, machine, progress, written
 
 FINETUNE_RATES = LazyDefault("jaxstyle.train.defaults", "FILM_DEFAULT_RATES")
 NAME = "lpn"

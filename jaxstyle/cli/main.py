@@ -32,19 +32,16 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from jaxstyle.cli import bench, data, demo, lpn, play, render, sweep, synthesize, train_base
+from jaxstyle.cli.args import Formatter, Parser, finite, resolve_defaults
 from jaxstyle.cli.common import (
     CLIError,
-    Formatter,
-    Parser,
     Run,
     check_input_file,
     check_input_folder,
     describe_os_error,
     ensure_folder,
     file_in_the_way,
-    finite,
     one_line,
-    resolve_defaults,
     start_distributed,
     use_xla_cache,
 )

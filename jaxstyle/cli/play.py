@@ -6,17 +6,8 @@ import re
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import (
-    DEMO_RUN,
-    LEARN_EPOCHS,
-    SWEEP_RATES,
-    CLIError,
-    Run,
-    add_common,
-    check_positive,
-    check_rates,
-    finite,
-)
+from jaxstyle.cli.args import LEARN_EPOCHS, SWEEP_RATES, add_common, check_positive, check_rates, finite
+from jaxstyle.cli.common import DEMO_RUN, CLIError, Run
 
 PLAY_MODELS = ("pfnn", "lpn-film", "lpn-onehot", "lpn-resad", "mann-film", "pfnn-film", "pfnn-onehot", "pfnn-resad")
 """``--model``: the 2018 PFNN and the 2022 models of Table 2 (``jaxstyle.mason2022.synthesis.MODELS``)."""
@@ -80,7 +71,7 @@ def _run_demo(run: Run, args) -> None:
     """``jaxstyle demo`` into the run folder, with its default settings (its own arguments, parsed
     by a parser of ``jaxstyle demo`` alone)."""
     from jaxstyle.cli import demo
-    from jaxstyle.cli.common import Parser, resolve_defaults
+    from jaxstyle.cli.args import Parser, resolve_defaults
 
     parser = Parser(prog="jaxstyle demo")
     demo.add_arguments(parser)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from jaxstyle.cli.common import CLIError, add_common, check_input_file, check_positive, ensure_folder, finite, progress
+from jaxstyle.cli.args import add_common, check_positive, finite
+from jaxstyle.cli.common import CLIError, check_input_file, ensure_folder, progress
 
 NAME = "render"
 HELP = "render BVH files side by side to a GIF (or MP4)"

@@ -6,21 +6,16 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import (
-    CLIError,
-    Run,
+from jaxstyle.cli.args import (
     add_common,
     add_distributed_args,
     add_joint_map_arg,
     add_sweep_args,
     check_positive,
-    elapsed,
     finite,
     joint_map,
-    machine,
-    progress,
-    written,
 )
+from jaxstyle.cli.common import CLIError, Run, elapsed, machine, progress, written
 
 NAME = "sweep"
 HELP = "fine-tune new few-shot styles x dropout rates in one compiled sweep"
@@ -73,11 +68,11 @@ def sweep_and_report(run: Run, args, base, specs):
 
 def run(args, run: Run) -> None:
     from jaxstyle.data import folders
-    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.mason2018 import base_model, pipeline
 
     check_positive(args, "seconds", "sweep_epochs")
     user_map = joint_map(args)
-    base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache" if run.writer else None,
+    base = base_model.load_base(run.dir / "base", cache=run.dir / "cache" if run.writer else None,
                               progress=progress(args))
     root = Path(base.settings.data)
     jmap = user_map or base.settings.joint_map

@@ -7,18 +7,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import (
-    CLIError,
-    Run,
-    add_common,
-    add_synth_args,
-    check_positive,
-    check_synthesis,
-    elapsed,
-    finite,
-    progress,
-    written,
-)
+from jaxstyle.cli.args import add_common, add_synth_args, check_positive, check_synthesis, finite
+from jaxstyle.cli.common import CLIError, Run, elapsed, progress, written
 
 NAME = "synthesize"
 HELP = "drive base and few-shot styles along paths: GIF, BVH, quality"
@@ -146,12 +136,12 @@ def run(args, run: Run) -> None:
     check_synthesis(args)
     if args.model != "pfnn":
         return run_lpn(args, run)
-    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.mason2018 import base_model, pipeline
 
     if args.blend_weights is not None or args.model_dir is not None:
         raise CLIError("--blend-weights and --model-dir are for the 2022 models (--model lpn-film ...); the 2018 "
                        "blend is --blend (50/50 of the first two few-shot sets)")
-    base = pipeline.load_base(run.dir / "base", cache=run.dir / "cache", progress=progress(args))
+    base = base_model.load_base(run.dir / "base", cache=run.dir / "cache", progress=progress(args))
     chosen, shots = pipeline.load_sweep(run.dir / "sweep", base, cache=run.dir / "cache")
     sets = args.sets if args.sets is not None else pipeline.default_sets(chosen)
     base_styles = args.base_styles or list(base.dataset.styles[:1])

@@ -1,12 +1,13 @@
 """``jaxstyle train-base``: the 2018 base PFNN with one CP adapter per style
-(:func:`jaxstyle.mason2018.pipeline.train_base`)."""
+(:func:`jaxstyle.mason2018.base_model.train_base`)."""
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
 
-from jaxstyle.cli.common import DATA_HELP, Run, add_base_args, add_common, elapsed, joint_map, machine, progress
+from jaxstyle.cli.args import add_base_args, add_common, joint_map
+from jaxstyle.cli.common import DATA_HELP, Run, elapsed, machine, progress
 
 NAME = "train-base"
 HELP = "train the 2018 base PFNN with one CP adapter per style"
@@ -25,13 +26,13 @@ def add_arguments(p) -> None:
 
 
 def base_settings(args, root: Path):
-    """The :class:`~jaxstyle.mason2018.pipeline.BaseSettings` of the arguments, and the held-out styles."""
+    """The :class:`~jaxstyle.mason2018.base_model.BaseSettings` of the arguments, and the held-out styles."""
     from jaxstyle.data import folders
-    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.mason2018 import base_model
 
     base_styles, held_out = folders.split_styles(root, args.fewshot_styles, args.styles)
     gaits = tuple(args.gaits) if args.gaits else None
-    settings = pipeline.BaseSettings(str(root), base_styles, gaits, hidden=args.hidden, rank=args.rank,
+    settings = base_model.BaseSettings(str(root), base_styles, gaits, hidden=args.hidden, rank=args.rank,
                                      epochs=args.base_epochs, max_seconds=args.max_seconds,
                                      joint_map=joint_map(args))
     return settings, held_out
@@ -39,13 +40,13 @@ def base_settings(args, root: Path):
 
 def run(args, run: Run) -> None:
     from jaxstyle.data import folders
-    from jaxstyle.mason2018 import pipeline
+    from jaxstyle.mason2018 import base_model
 
     root = folders.style_root(args.data)
     settings, held_out = base_settings(args, root)
     run.say(f"train-base on {machine()}; held out for few-shot: {', '.join(held_out)}")
     t0 = time.perf_counter()
-    base = pipeline.train_base(settings, run.dir / "base", cache=run.dir / "cache", progress=progress(args),
+    base = base_model.train_base(settings, run.dir / "base", cache=run.dir / "cache", progress=progress(args),
                                log=run.say)
     run.say(f"base ready in {elapsed(t0)}: {run.dir / 'base'} (per-epoch validation losses in log.csv there, "
             f"{len(base.dataset.styles)} style adapters)")

@@ -5,7 +5,7 @@ download, checks its md5, unpacks it safely and returns the folder holding the s
 
     from jaxstyle.data.fetch import fetch
     root = fetch("100style", "~/data")          # ~/data/100STYLE, with Frame_Cuts.csv etc.
-    specs = jaxstyle.data.datasets.specs_100style(root)
+    specs = jaxstyle.data.clips.specs_100style(root)
 
 How it behaves:
 

@@ -15,8 +15,8 @@ import os
 from pathlib import Path
 from typing import Sequence
 
-from jaxstyle.data import datasets
-from jaxstyle.data.datasets import ClipSpec
+from jaxstyle.data import clips
+from jaxstyle.data.clips import ClipSpec
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.motion.bvh import frame_rate
 from jaxstyle.motion.skeleton import JointMap
@@ -102,7 +102,7 @@ def folder_specs(root: str | os.PathLike, styles: Sequence[str], gaits: Sequence
     symmetric."""
     root = Path(root)
     listed = root / "Dataset_List.csv"
-    symmetric = datasets.symmetric_styles(listed) if listed.is_file() else {}
+    symmetric = clips.symmetric_styles(listed) if listed.is_file() else {}
     specs = []
     for style in styles:
         for f in sorted((root / style).glob(f"{style}_*.bvh")):
@@ -130,7 +130,7 @@ def clip_specs(root: str | os.PathLike, styles: Sequence[str], gaits: Sequence[s
         return [cut(s, max_seconds) for s in folder_specs(root, styles, gaits, joint_map)]
     gaits = tuple(gaits or LOCOMOTION_GAITS)
     try:
-        specs = datasets.specs_100style(root, styles=styles, gaits=gaits, joint_map=joint_map)
+        specs = clips.specs_100style(root, styles=styles, gaits=gaits, joint_map=joint_map)
     except ValueError as e:
         raise PipelineError(f"{e} (gaits {', '.join(gaits)})") from None
     return [cut(s, max_seconds) for s in specs]

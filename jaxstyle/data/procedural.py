@@ -6,7 +6,7 @@ different styles, from nothing but NumPy and jaxstyle's own motion core (:class:
 
 * **Data without a download.** :func:`write_dataset` writes a folder in the 100STYLE layout
   (``<root>/<Style>/<Style>_<GAIT>.bvh`` with ``Frame_Cuts.csv`` and ``Dataset_List.csv``) plus
-  PFNN label files, which :func:`jaxstyle.data.datasets.specs_100style` and the feature builders read
+  PFNN label files, which :func:`jaxstyle.data.clips.specs_100style` and the feature builders read
   like the real capture, so a demo can train end to end offline.
 * **A labelling oracle.** Every clip comes with its phase and foot contacts *by construction*
   (:class:`Generated`), to test the automatic labellers (:func:`jaxstyle.global_phase`,
@@ -571,7 +571,7 @@ def write_dataset(root: str | os.PathLike, styles: Sequence[str] | None = None, 
     Raises:
       ValueError: an unknown style or gait, or bad ``seconds`` / ``fps`` / ``seed`` (see :func:`generate`).
     """
-    from jaxstyle.data.datasets import GAITS_100STYLE
+    from jaxstyle.data.clips import GAITS_100STYLE
 
     styles = list(STYLES) if styles is None else ([styles] if isinstance(styles, str) else list(styles))
     gaits = [gaits] if isinstance(gaits, str) else list(gaits)

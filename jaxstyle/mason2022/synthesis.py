@@ -36,7 +36,7 @@ import numpy as np
 
 from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.data import datasets
-from jaxstyle.data.datasets import ClipSpec
+from jaxstyle.data.clips import ClipSpec
 from jaxstyle.data.folders import PipelineError, located_path
 from jaxstyle.mason2022 import pipeline, styledata
 from jaxstyle.mason2022 import train as train_lpn
@@ -73,7 +73,7 @@ class Loaded(NamedTuple):
         (:class:`jaxstyle.control.lpn_controller.StyleNetModel`: a character's conditioning is its
         runtime style), normalised with its training data's statistics, its local phases floored
         at ``phase_floor`` times each style's capture rate
-        (:func:`jaxstyle.control.lpn_controller.floored_phases`; 0: the paper's runtime)."""
+        (:func:`jaxstyle.control.lpn_phases.floored_phases`; 0: the paper's runtime)."""
         m = self.model
         return StyleNetModel.create(m.params, m.config, self.data.base.normalisers(), self.data.skeleton,
                                     blend_bias=blend_bias, phase_floor=self.phase_floor)

@@ -148,9 +148,9 @@ at its capture's pace within the 25% the benchmark allows never comes near it)."
 
 def capture_rate(character) -> float:
     """The local phases' median advance per frame in the capture of ``character``'s style
-    (anything with ``dataset`` and ``style``; :func:`jaxstyle.control.lpn_controller.capture_phase_rate`;
+    (anything with ``dataset`` and ``style``; :func:`jaxstyle.control.lpn_phases.capture_phase_rate`;
     0 for a dataset without local phases, whose rollouts :func:`phase_figures` leaves out)."""
-    from jaxstyle.control.lpn_controller import capture_phase_rate
+    from jaxstyle.control.lpn_phases import capture_phase_rate
 
     phases = np.asarray(getattr(character.dataset, "phases", np.zeros((0, 0))))
     if phases.ndim != 2 or phases.shape[1:] != (8,):
@@ -165,7 +165,7 @@ def phase_figures(rollout, signal: paths.PathSignal, capture_rate: float) -> dic
     :func:`capture_rate`), ``phase_rate_ratio``, and
     ``phases_stalled`` (below :data:`STALL_RATIO`: the closed loop froze and the character glides).
     Empty for other models."""
-    from jaxstyle.control.lpn_controller import local_phase_advance
+    from jaxstyle.control.lpn_phases import local_phase_advance
 
     phases = np.asarray(getattr(rollout, "phases", np.zeros((0, 0))))
     if phases.ndim != 2 or phases.shape[1] != 8 or len(phases) < 3:

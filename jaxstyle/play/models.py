@@ -38,7 +38,7 @@ from jaxstyle.data import folders
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2018 import pipeline, sweep_files
+from jaxstyle.mason2018 import base_model, sweep_files
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn
 from jaxstyle.output.check import FAILED_MARK, failed_check
@@ -116,10 +116,10 @@ class Playable:
 
 @dataclasses.dataclass
 class PlayModel(Playable):
-    """A loaded run's 2018 model: the base (:class:`jaxstyle.mason2018.pipeline.Base`) and its
+    """A loaded run's 2018 model: the base (:class:`jaxstyle.mason2018.base_model.Base`) and its
     styles (:class:`Playable`). Styles learned live are added to it (:attr:`learnable`)."""
 
-    base: pipeline.Base
+    base: base_model.Base
     key = PFNN
     title = "2018 PFNN"
     learnable = True
@@ -199,7 +199,7 @@ class LPNPlayModel(Playable):
 AnyPlayModel = PlayModel | LPNPlayModel
 
 
-def _sweep_styles(directory: Path, base: pipeline.Base, kind: str, allow_failed: bool = False
+def _sweep_styles(directory: Path, base: base_model.Base, kind: str, allow_failed: bool = False
                   ) -> tuple[list[Style], list[str]]:
     """The chosen adapters of a sweep report written by :func:`jaxstyle.mason2018.pipeline.run_sweep`,
     and one line per set left out because it failed the closed-loop check at every rate
@@ -233,7 +233,7 @@ def load_model(run_dir: str | Path, *, progress: bool = False, allow_failed: boo
     ``allow_failed``. A folder without a base raises :class:`jaxstyle.data.folders.PipelineError`
     naming it."""
     run_dir = Path(run_dir)
-    base = pipeline.load_base(run_dir / "base", cache=run_dir / "cache", progress=progress)
+    base = base_model.load_base(run_dir / "base", cache=run_dir / "cache", progress=progress)
     styles: dict[str, Style] = {}
     for s, name in enumerate(base.dataset.styles):
         styles[name] = Style(name, "base", None, jax.tree.map(lambda v, s=s: v[s], base.adapters))

@@ -19,8 +19,8 @@ FILM_DEFAULT_RATES: tuple[float, ...] = (0.1, 0.3, 0.5)
 
 PHASE_FLOOR = 0.75
 """The runtime's default floor on each limb's local-phase advance, as a fraction of the style's
-capture rate (:func:`jaxstyle.control.lpn_controller.floored_phases`,
-:func:`jaxstyle.control.lpn_controller.capture_phase_rate`): 0 is the paper's runtime. 0.75
+capture rate (:func:`jaxstyle.control.lpn_phases.floored_phases`,
+:func:`jaxstyle.control.lpn_phases.capture_phase_rate`): 0 is the paper's runtime. 0.75
 is the lower edge of the band (within 25% of the capture's rate) a stepping character's phases
 should keep; measured on the demo's 100STYLE styles against 0.5 (docs/mason2022.md, "The closed loop:
 why it froze"), so the phase rate of a character run with it is not independent evidence
