@@ -132,11 +132,11 @@ def screenshot(run: Path, path: Path) -> None:
     """The page on ``run`` with a Crouched and a Proud_FW character walking to two waypoints."""
     from playwright.sync_api import sync_playwright
 
-    from jaxstyle.play.server import PlayServer
+    from jaxstyle.play.server import PlayServer, Serving
 
     args = ["--no-sandbox", "--use-gl=swiftshader", "--enable-unsafe-swiftshader", "--disable-background-networking",
             "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
-    server = PlayServer(run, port=free_port()).start()
+    server = PlayServer(run, Serving(port=free_port())).start()
     try:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=args)
@@ -181,7 +181,8 @@ def learn_once(run: Path, epochs: int) -> None:
     import types
 
     from jaxstyle.cli.common import use_xla_cache
-    from jaxstyle.play.server import PlayServer
+    from jaxstyle.play.learn_panel import Learning
+    from jaxstyle.play.server import PlayServer, Serving
 
     use_xla_cache()
     with tempfile.TemporaryDirectory() as tmp:
@@ -190,7 +191,7 @@ def learn_once(run: Path, epochs: int) -> None:
             shutil.copytree(run / part, copy / part)
         clips = [_clip(copy, 10.0, Path(tmp), "Proud10", "Proud/Proud_FR.bvh"),
                  _clip(copy, 8.0, Path(tmp), "Limping8", "Limping/Limping_FW.bvh")]
-        server = PlayServer(copy, port=free_port(), learn_epochs=epochs).start()
+        server = PlayServer(copy, Serving(port=free_port()), Learning(epochs=epochs)).start()
         try:
             server.session.walk_to(0.0, 50.0)
             time.sleep(3.0)  # walking, the reader process started
@@ -270,7 +271,7 @@ def main() -> None:
     if args.screenshot:
         screenshot(args.run or Path("runs/demo"), args.screenshot)
         return
-    from jaxstyle.play.server import PlayServer
+    from jaxstyle.play.server import PlayServer, Serving
 
     with tempfile.TemporaryDirectory() as tmp:
         if args.model == "lpn-film":
@@ -283,7 +284,7 @@ def main() -> None:
         else:
             model = demo_size_model(Path(tmp))
             what = "random PFNN of the demo's size (hidden 256, rank 16)"
-        server = PlayServer(tmp, port=free_port())
+        server = PlayServer(tmp, Serving(port=free_port()))
         server.start(model=model, loop=False)
         try:
             print(f"jaxstyle play, server side per frame; {platform.machine()}, {os.cpu_count()} cores, "

@@ -608,11 +608,11 @@ def test_play_a_trained_2022_model_from_its_run_folder(trained_lpn_run, model, t
     the 2022 model's styles in the dropdown; learning refused in one line while it plays; a target
     ahead approached (a one-epoch model walks forward whatever it is told, so only a target ahead
     is a fair check of its motion)."""
-    from jaxstyle.play.server import PlayServer
+    from jaxstyle.play.server import PlayServer, Serving
 
     run = trained_lpn_run[0]
     assert models.available_models(run) == {"lpn-film": "2022 LPN FiLM (Mason et al. 2022)"}
-    server = PlayServer(run, port=0).start(model=model, loop=False)  # a 2018 model, given, and RUN/lpn
+    server = PlayServer(run, Serving(port=0)).start(model=model, loop=False)  # a 2018 model, given, and RUN/lpn
     try:
         learner = server.learner
         assert server.session.model is model and learner is not None and not server._gui["learn"].disabled

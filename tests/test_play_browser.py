@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxstyle.play.server import PlayServer
+from jaxstyle.play.learn_panel import Learning
+from jaxstyle.play.server import PlayServer, Serving
 from tests.test_play import other_skeleton_bvh, tiny_model
 
 CHROMIUM = Path(os.environ.get("JAXSTYLE_CHROMIUM", "/usr/bin/chromium"))
@@ -88,7 +89,7 @@ def open_page(browser, server: PlayServer):
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
     folder = tmp_path_factory.mktemp("play_browser")
-    server = PlayServer(folder, port=free_port(), learn_epochs=1, learn_rates=(0.3,))
+    server = PlayServer(folder, Serving(port=free_port()), Learning(epochs=1, rates=(0.3,)))
     server.start(model=tiny_model(folder))
     yield server
     server.stop()
@@ -233,7 +234,7 @@ def test_learn_a_style_live_and_record(browser, tmp_path):
     root = procedural.write_dataset(tmp_path / "run" / "data", ["Neutral", "Crouched", "Proud"], ["FW"], seconds=10)
     base_model.train_base(base_model.BaseSettings(data=str(root), styles=("Neutral", "Crouched"), hidden=32, rank=4,
                                               epochs=2), tmp_path / "run" / "base", progress=False, log=lambda _: None)
-    server = PlayServer(tmp_path / "run", port=free_port(), learn_epochs=2).start()
+    server = PlayServer(tmp_path / "run", Serving(port=free_port()), Learning(epochs=2)).start()
     try:
         page = open_page(browser, server)
         frames = server.session.frames

@@ -16,8 +16,9 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
 from jaxstyle.play import guard
+from jaxstyle.play.learn_panel import Learning
 from jaxstyle.play.models import PlayError
-from jaxstyle.play.server import PlayServer
+from jaxstyle.play.server import PlayServer, Serving
 from tests.test_play import other_skeleton_bvh, tiny_model
 from tests.test_play_browser import wait_for
 
@@ -111,7 +112,7 @@ def live(tmp_path_factory):
     folder = tmp_path_factory.mktemp("guarded") / "run"
     folder.mkdir()
     logged = []
-    server = PlayServer(folder, port=0, learn_epochs=1, learn_rates=(0.3,), max_upload_bytes=100_000,
+    server = PlayServer(folder, Serving(port=0), Learning(epochs=1, rates=(0.3,), max_upload_bytes=100_000),
                         log=logged.append)
     server.start(model=tiny_model(folder))
     server.logged = logged
@@ -152,7 +153,7 @@ def test_a_foreign_origin_is_refused_and_logged(live):
 
 
 def test_a_token_server_admits_only_its_url(tmp_path):
-    server = PlayServer(tmp_path, port=0, token="a-token-123")
+    server = PlayServer(tmp_path, Serving(port=0, token="a-token-123"))
     server.start(load=False, loop=False)
     try:
         assert server.url == f"http://127.0.0.1:{server.port}/?websocket=ws://127.0.0.1:{server.port}/a-token-123"
@@ -167,7 +168,7 @@ def test_a_token_server_admits_only_its_url(tmp_path):
 def test_an_unknown_host_fails_at_once(tmp_path):
     t0 = time.monotonic()
     with pytest.raises(PlayError, match=r"--host 999\.1\.1\.1: not an address"):
-        PlayServer(tmp_path, host="999.1.1.1", port=0).start(load=False, loop=False)
+        PlayServer(tmp_path, Serving(host="999.1.1.1", port=0)).start(load=False, loop=False)
     assert time.monotonic() - t0 < 10
 
 

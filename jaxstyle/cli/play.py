@@ -82,8 +82,9 @@ def _run_demo(run: Run, args) -> None:
 
 
 def run(args, run: Run) -> None:
+    from jaxstyle.play.learn_panel import Learning
     from jaxstyle.play.models import PlayError, available_models
-    from jaxstyle.play.server import PlayServer
+    from jaxstyle.play.server import PlayServer, Serving
 
     check_positive(args, "learn_epochs", "record_seconds", "max_upload_mb")
     if args.token is not None and not re.fullmatch(r"[A-Za-z0-9_-]{8,128}", args.token):
@@ -113,10 +114,11 @@ def run(args, run: Run) -> None:
                f"`jaxstyle lpn` or `jaxstyle demo --model {args.model}` (into RUN/lpn)")
         raise CLIError(f"--model {args.model}: {args.run} has no trained {args.model} model (it has "
                        f"{', '.join(have)}); train one with {how}")
-    server = PlayServer(args.run, host=args.host, port=args.port, learn_epochs=args.learn_epochs,
-                        learn_rates=tuple(args.rates), record_seconds=args.record_seconds, model=args.model,
-                        log=run.say, token=args.token, data_dirs=tuple(args.clip_dir),
-                        max_upload_bytes=int(args.max_upload_mb * 1e6), allow_failed=args.allow_failed)
+    server = PlayServer(args.run, Serving(args.host, args.port, args.token),
+                        Learning(args.learn_epochs, tuple(args.rates), tuple(args.clip_dir),
+                                 int(args.max_upload_mb * 1e6)),
+                        record_seconds=args.record_seconds, model=args.model, log=run.say,
+                        allow_failed=args.allow_failed)
     try:
         server.start()  # says where the page is, then loads the run
         while True:

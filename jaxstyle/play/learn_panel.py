@@ -8,6 +8,7 @@ disabled and say why.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import uuid
 from pathlib import Path
@@ -21,21 +22,37 @@ NO_2018_MODEL = ("learning a style live is the 2018 few-shot sweep (Mason et al.
                  "2018 model (RUN/base); a 2022 model learns new styles with `jaxstyle lpn --clip FILE`")
 
 
+MAX_UPLOAD_BYTES = 8_000_000  # an upload's default cap (a 10 s 100STYLE clip is about 0.1 MB)
+
+
+@dataclasses.dataclass(frozen=True)
+class Learning:
+    """How the page learns a style live: the few-shot sweep's ``epochs`` and dropout ``rates``
+    (``None``: the learner's default, :data:`jaxstyle.train.defaults.DEFAULT_RATES`), the folders a
+    clip the page names may lie in besides the run folder (``data_dirs``) and the cap on an
+    upload's size (``max_upload_bytes``)."""
+
+    epochs: int = learn.LEARN_EPOCHS
+    rates: tuple[float, ...] | None = None
+    data_dirs: tuple[str | Path, ...] = ()
+    max_upload_bytes: int = MAX_UPLOAD_BYTES
+
+
 class LearnPanel:
     """The learning half of :class:`jaxstyle.play.server.PlayServer` (which inherits it and calls
     :meth:`_init_learning` first). Besides its own state it uses the server's ``session``, ``lock``,
     ``run_dir``, ``allow_failed``, ``_models``, ``_model_keys``, the page's controls ``_gui`` and the
     server's ``show_error``, ``log``, ``_guarded`` and ``_refresh_style_options``."""
 
-    def _init_learning(self, epochs: int, rates, data_dirs, max_upload_bytes: int) -> None:
-        """The learning state: ``learner`` (the run's 2018 model's; ``None`` without one), the
-        sweep's ``learn_epochs`` and ``learn_rates`` (``None``: the learner's default), the folders
-        a named file may lie in besides the run folder (``data_dirs``) and the upload cap."""
+    def _init_learning(self, learning: Learning) -> None:
+        """The learning state: ``learner`` (the run's 2018 model's; ``None`` without one) and the
+        :class:`Learning` settings as ``learn_epochs``, ``learn_rates``, ``data_dirs`` and
+        ``max_upload_bytes``."""
         self.learner: learn.Learner | None = None
-        self.learn_epochs = int(epochs)
-        self.learn_rates = rates
-        self.data_dirs = tuple(Path(d) for d in data_dirs)
-        self.max_upload_bytes = int(max_upload_bytes)
+        self.learn_epochs = int(learning.epochs)
+        self.learn_rates = None if learning.rates is None else tuple(learning.rates)
+        self.data_dirs = tuple(Path(d) for d in learning.data_dirs)
+        self.max_upload_bytes = int(learning.max_upload_bytes)
         self._learners: dict[int, tuple[PlayModel, learn.Learner]] = {}  # per 2018 model (kept alive with it)
         self._reading = threading.Lock()  # held while a clip the page named is read and checked
         self._pending_upload: Path | None = None

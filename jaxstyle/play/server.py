@@ -16,9 +16,10 @@ ones, so no request blocks the render loop: the lock that serialises access to t
 never held while a file is read.
 
 Trust (:mod:`jaxstyle.play.guard`, docs/play.md): only the page's own origin may connect (and,
-with ``token``, only with it); files and run folders the page names must lie under the allowed
-roots (the run folder, ``data_dirs``; run folders under ``runs_root``); uploads are capped at
-``max_upload_bytes``, written under a fresh name and removed when refused; messages about a file
+with :class:`Serving`'s ``token``, only with it); files and run folders the page names must lie
+under the allowed roots (the run folder, :class:`jaxstyle.play.learn_panel.Learning`'s
+``data_dirs``; run folders under ``runs_root``); uploads are capped at its ``max_upload_bytes``,
+written under a fresh name and removed when refused; messages about a file
 never quote its contents.
 
 Models: a run folder may hold the 2018 PFNN (``RUN/base``) and a trained 2022 model (``RUN/lpn``);
@@ -36,6 +37,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import datetime
 import math
 import threading
@@ -47,7 +49,7 @@ import numpy as np
 
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.play import guard, learn
-from jaxstyle.play.learn_panel import LearnPanel
+from jaxstyle.play.learn_panel import Learning, LearnPanel
 from jaxstyle.play.models import (
     PFNN,
     PLAY_DIR,
@@ -66,7 +68,18 @@ FPS = 60.0
 NO_BLEND = "(none)"
 NO_MODEL = "(none)"
 STEER_BUTTONS = {"Left": "A", "Forward": "W", "Back": "S", "Right": "D"}
-MAX_UPLOAD_BYTES = 8_000_000  # an upload's default cap (a 10 s 100STYLE clip is about 0.1 MB)
+
+
+@dataclasses.dataclass(frozen=True)
+class Serving:
+    """Where the page is served: ``host`` and ``port`` (0: a free port, read back as
+    :attr:`PlayServer.port` once started), the ``token`` a browser must present (``None``: none;
+    :mod:`jaxstyle.play.guard`) and ``verbose`` (viser's own log)."""
+
+    host: str = "127.0.0.1"
+    port: int = 8080
+    token: str | None = None
+    verbose: bool = False
 
 
 def _one_line(e: BaseException) -> str:
@@ -84,26 +97,33 @@ class PlayServer(SceneView, LearnPanel):
     (``time.monotonic()`` of the last minute's frames) and ``learner``
     (the 2018 model's; ``None`` without one).
 
-    ``model``: the model to start with (``pfnn`` or a 2022 key such as ``lpn-film``,
-    :func:`jaxstyle.play.models.available_models`); default the run's 2018 model when it has one.
+    Args:
+      run_dir: the run folder to play.
+      serving: host, port, token (:class:`Serving`; default: 127.0.0.1:8080, no token).
+      learning: how a style is learned live (:class:`jaxstyle.play.learn_panel.Learning`).
+      model: the model to start with (``pfnn`` or a 2022 key such as ``lpn-film``,
+        :func:`jaxstyle.play.models.available_models`); default the run's 2018 model when it has one.
+      record_seconds: the length of a recording.
+      log: where notes go (the command line's run log).
+      runs_root: the folder whose run folders the page may load (default: ``run_dir``'s parent).
+      allow_failed: offer and keep styles that failed the closed-loop check.
     """
 
-    def __init__(self, run_dir: str | Path, *, host: str = "127.0.0.1", port: int = 8080,
-                 learn_epochs: int = learn.LEARN_EPOCHS, learn_rates=None, record_seconds: float = 10.0,
-                 verbose: bool = False, model: str | None = None,
-                 log: Callable[[str], None] = lambda _: None, token: str | None = None,
-                 data_dirs: tuple[str | Path, ...] = (), runs_root: str | Path | None = None,
-                 max_upload_bytes: int = MAX_UPLOAD_BYTES, allow_failed: bool = False):
+    def __init__(self, run_dir: str | Path, serving: Serving | None = None, learning: Learning | None = None, *,
+                 model: str | None = None, record_seconds: float = 10.0,
+                 log: Callable[[str], None] = lambda _: None, runs_root: str | Path | None = None,
+                 allow_failed: bool = False):
+        serving = serving or Serving()
         self.run_dir = Path(run_dir)
         self.allow_failed = bool(allow_failed)  # offer and keep styles that failed the closed-loop check
-        self.token = token
+        self.token = serving.token
         self.runs_root = Path(runs_root) if runs_root is not None else self.run_dir.resolve().parent
-        self._init_learning(learn_epochs, learn_rates, data_dirs, max_upload_bytes)
+        self._init_learning(learning or Learning())
         self.model_key = model
         self._models: dict[tuple[str, str], AnyPlayModel] = {}  # loaded once per (run folder, model)
         self._model_keys: dict[str, str] = {}  # the Model choice's labels -> keys
         self._refreshing_models = False
-        self.host, self.port, self.verbose, self.log = host, int(port), verbose, log
+        self.host, self.port, self.verbose, self.log = serving.host, int(serving.port), serving.verbose, log
         self.record_seconds = float(record_seconds)
         self.session: Session | None = None
         self.message = ""
