@@ -116,7 +116,7 @@ def _step_runner(name: str, steps: int, batch: int, compute_dtype: str | None, m
         return params, opt
 
     state = T.init_state(jax.random.PRNGKey(0), config)
-    return run, (state["params"], state["opt_state"]), (T, mc, config, data, arrays, bones, inputs, lr, extra)
+    return run, (state.params, state.opt_state), (T, mc, config, data, arrays, bones, inputs, lr, extra)
 
 
 def time_steps(name: str, steps: int, runs: int, batch: int = 32, compute_dtype: str | None = None) -> dict:
@@ -182,7 +182,7 @@ def xla_cost(name: str) -> tuple[float, float]:
     arrays, bones = styledata.device_arrays(data), styledata.StaticBones(data.bones)
     state = T.init_state(jax.random.PRNGKey(0), config)
     b, s, c = (np.asarray(a[:1]) for a in T.epoch_batches(data, config, 0))
-    lowered = T._train_chunk.lower(state["params"], state["opt_state"], arrays, b, s, c,
+    lowered = T._train_chunk.lower(state.params, state.opt_state, arrays, b, s, c,
                                    jax.random.split(jax.random.PRNGKey(1), 1), np.float32(0.3), np.float32(1.0),
                                    config=mc, bones=bones, learning_rate=1e-4)
     cost = lowered.compile().cost_analysis()

@@ -54,7 +54,7 @@ def main() -> None:
     t0 = time.perf_counter()
     state = train(data, config, args.out)
     seconds = time.perf_counter() - t0
-    val = validation_losses(state["params"], state["adapters"], data)
+    val = validation_losses(state.params, state.adapters, data)
     mean = mean_predictor_losses(data)
     print(f"\ntrained in {seconds:.0f} s (this call)\n")
     print("| style | validation MSE | mean predictor | ratio |\n|---|---|---|---|")

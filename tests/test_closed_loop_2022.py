@@ -85,7 +85,7 @@ def test_rollout_loss_feeds_the_network_what_the_runtime_would(real):
     data = styledata.style_data(ds, skeleton)
     mc = _tiny(len(ds.styles))
     params = jax.tree.map(lambda v: v + 0.05 * jnp.sin(jnp.arange(v.size).reshape(v.shape) * 1.7),
-                          train_lpn.init_state(jax.random.PRNGKey(1), train_lpn.LPNTrainConfig(model=mc))["params"])
+                          train_lpn.init_state(jax.random.PRNGKey(1), train_lpn.LPNTrainConfig(model=mc)).params)
     arrays = tuple(jnp.asarray(a) for a in (data.x, data.y, data.gate, data.clips))
     feedback = (jnp.asarray(np.maximum(data.next_row, 0)), *(jnp.asarray(a) for a in data.stats))
     idx = jnp.asarray(styledata.rollout_starts(data.train_rows[0], data.next_row, 1)[:8])

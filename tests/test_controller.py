@@ -189,7 +189,7 @@ def tiny_walker(mocap):
     model = pfnn.PFNNConfig(input_size=layout.input_size, hidden_size=64, output_size=layout.output_size, rank=4)
     state = train(data_from_dataset(dataset), TrainConfig(model=model, epochs=6, dropout_rate=0.1), None,
                   progress=False)
-    return state["params"], dataset, load_clip(specs[0], fps=60.0)
+    return state.params, dataset, load_clip(specs[0], fps=60.0)
 
 
 def test_stop_and_go_stops_and_starts_again(tiny_walker):

@@ -290,15 +290,15 @@ def test_training_lowers_the_loss_and_resumes_exactly(tmp_path, modulation):
     data = synthetic_data()
     config = train_lpn.LPNTrainConfig(model=small_config("lpn", modulation), epochs=4, batch_size=8,
                                       learning_rate=3e-3, dropout_rate=0.1, log_every=5)
-    before = train_lpn.evaluate(train_lpn.init_state(jax.random.PRNGKey(0), config)["params"], config.model, data,
+    before = train_lpn.evaluate(train_lpn.init_state(jax.random.PRNGKey(0), config).params, config.model, data,
                                 "validation")
     full = train_lpn.train(data, config, tmp_path / "a", progress=False)
-    after = train_lpn.evaluate(full["params"], config.model, data, "validation")
+    after = train_lpn.evaluate(full.params, config.model, data, "validation")
     assert np.mean(after["mse"]) < 0.7 * np.mean(before["mse"])
     train_lpn.train(data, config, tmp_path / "b", progress=False, stop_after_epochs=2)
     resumed = train_lpn.train(data, config, tmp_path / "b", progress=False)
-    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6), full["params"],
-                 resumed["params"])
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6), full.params,
+                 resumed.params)
     log = (tmp_path / "b" / "log.csv").read_text().splitlines()
     assert log[0].startswith("epoch,train_loss,train_mse,train_bll,val_mse,val_bll") and len(log) == 5
 
@@ -400,9 +400,9 @@ def test_a_small_model_trains_on_real_clips(real_data):
     mc = StyleModelConfig(num_styles=2, hidden_size=16, num_experts=2, gating_hidden=8,
                           generator=film.FiLMConfig(filters=4, width=5, hidden=16, film_size=64))
     config = train_lpn.LPNTrainConfig(model=mc, epochs=1, learning_rate=1e-3, log_every=40)
-    before = train_lpn.evaluate(train_lpn.init_state(jax.random.PRNGKey(0), config)["params"], mc, data, "validation")
+    before = train_lpn.evaluate(train_lpn.init_state(jax.random.PRNGKey(0), config).params, mc, data, "validation")
     state = train_lpn.train(data, config, progress=False)
-    after = train_lpn.evaluate(state["params"], mc, data, "validation")
+    after = train_lpn.evaluate(state.params, mc, data, "validation")
     assert np.isfinite(after["mse"]).all() and np.mean(after["mse"]) < np.mean(before["mse"])
 
 

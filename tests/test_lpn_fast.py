@@ -39,14 +39,14 @@ def _reference_steps(params, config, data, steps):
                                    lpn_loss.LossWeights(jnp.float32(config.dropout_rate),
                                                         jnp.float32(config.bone_loss_weight)), bones)
 
-    opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
+    opt = train_lpn.init_state(jax.random.PRNGKey(0), config).opt_state
     out = jax.jit(lambda p, o: scan.train_scan(loss_fn, p, o, scan.Steps((b, s, c), jnp.ones(steps, bool), keys),
                                                optimizer=config.learning_rate, has_aux=True))(params, opt)
     return out[0], np.asarray(out[2][0])
 
 
 def _fast_steps(params, config, data, steps, compute_dtype="float32"):
-    opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
+    opt = train_lpn.init_state(jax.random.PRNGKey(0), config).opt_state
     copy = jax.tree.map(jnp.copy, params)  # donated
     p, _, out = train_lpn._train_chunk(
         copy, opt, styledata.device_arrays(data), *_inputs(data, config, steps),
@@ -66,7 +66,7 @@ def _max_diff(a, b):
 
 def test_donated_unmasked_steps_equal_the_train_scan_driver():
     data, config = synthetic_data(), _config()
-    params = train_lpn.init_state(jax.random.PRNGKey(0), config)["params"]
+    params = train_lpn.init_state(jax.random.PRNGKey(0), config).params
     ref_p, ref_loss = _reference_steps(params, config, data, 3)
     fast_p, fast_loss = _fast_steps(params, config, data, 3)
     np.testing.assert_allclose(fast_loss, ref_loss, rtol=1e-6, atol=1e-6)
@@ -79,7 +79,7 @@ def test_train_one_epoch_equals_the_reference_steps():
     """:func:`train` (donated chunks of 5 steps, the last one shorter) equals the epoch's steps run
     through the reference driver in one scan, with the same batches, clips and keys."""
     data, config = synthetic_data(), _config(epochs=1, log_every=5)
-    init = train_lpn.init_state(jax.random.PRNGKey(config.seed), config)["params"]
+    init = train_lpn.init_state(jax.random.PRNGKey(config.seed), config).params
     state = train_lpn.train(data, config, progress=False)
     batches, styles, clips = train_lpn.epoch_batches(data, config, 0)
     keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(config.seed), 0), len(batches))
@@ -90,12 +90,12 @@ def test_train_one_epoch_equals_the_reference_steps():
         return lpn_loss.batch_loss(p, config.model, arrays, lpn_loss.Batch(idx, style, clip), key,
                                    lpn_loss.LossWeights(jnp.float32(0.3), jnp.float32(1.0)), data.bones)
 
-    opt = train_lpn.init_state(jax.random.PRNGKey(0), config)["opt_state"]
+    opt = train_lpn.init_state(jax.random.PRNGKey(0), config).opt_state
     steps = scan.Steps((jnp.asarray(batches), jnp.asarray(styles), jnp.asarray(clips)), jnp.ones(len(batches), bool),
                        keys)
     ref, _, _ = scan.train_scan(loss_fn, init, opt, steps, optimizer=config.learning_rate, has_aux=True)
     assert len(batches) > 5
-    assert _max_diff(state["params"], ref) <= 1e-6
+    assert _max_diff(state.params, ref) <= 1e-6
 
 
 @pytest.mark.parametrize("width", [5, 4])
@@ -136,7 +136,7 @@ def test_bfloat16_products_stay_within_bfloat16_precision():
     1e-2 relative, gradient within 3e-2 relative (L2). A no-op option (float32 everywhere) would
     pass too, so the test also checks the compiled step holds bfloat16 products."""
     data, config = synthetic_data(), _config()
-    params = train_lpn.init_state(jax.random.PRNGKey(0), config)["params"]
+    params = train_lpn.init_state(jax.random.PRNGKey(0), config).params
     arrays, bones = styledata.device_arrays(data), styledata.StaticBones(data.bones)
     b, s, c, keys = _inputs(data, config, 1)
 
@@ -156,7 +156,7 @@ def test_bfloat16_products_stay_within_bfloat16_precision():
 @pytest.mark.slow
 def test_one_bfloat16_training_step_stays_within_two_learning_rates():
     data, config = synthetic_data(), _config()
-    params = train_lpn.init_state(jax.random.PRNGKey(0), config)["params"]
+    params = train_lpn.init_state(jax.random.PRNGKey(0), config).params
     # one training step: Adam's first update is about -lr * sign(g) per weight, so the two paths'
     # weights differ by at most 2 lr, and differ at all only where a gradient's sign flipped
     p32, _ = _fast_steps(params, config, data, 1)

@@ -36,7 +36,7 @@ SCRIPT = textwrap.dedent("""
     keys = jax.random.split(jax.random.PRNGKey(3), 1)
     def step(mesh):
         state = T.init_state(jax.random.PRNGKey(0), config)
-        p, o = shard.replicate((state["params"], state["opt_state"]), mesh)
+        p, o = shard.replicate((state.params, state.opt_state), mesh)
         arrays = shard.replicate(styledata.device_arrays(data), mesh)
         b = shard.shard_batches(batches[:1], mesh)
         s, c, k = shard.replicate((jnp.asarray(styles[:1]), jnp.asarray(clips[:1]), keys), mesh)
@@ -47,14 +47,14 @@ SCRIPT = textwrap.dedent("""
     assert len(sharded[0]["synthesis"]["l0"]["W"].sharding.device_set) == 4
     assert sharded[0]["synthesis"]["l0"]["W"].sharding.is_fully_replicated
     print("step", diff(one[0], sharded[0]), diff(one[2], sharded[2]), diff(one[0], T.init_state(
-        jax.random.PRNGKey(0), config)["params"]))
+        jax.random.PRNGKey(0), config).params))
 
     if len(sys.argv) > 2:  # two epochs: sharded for one (checkpointed), resumed on one device,
         directory = sys.argv[1]  # against one device throughout
         T.train(data, config, directory, progress=False, devices="all", stop_after_epochs=1)
         resumed = T.train(data, config, directory, progress=False, devices=None)
         plain = T.train(data, config, progress=False)
-        print("epochs", diff(resumed["params"], plain["params"]), int(resumed["epoch"]))
+        print("epochs", diff(resumed.params, plain.params), int(resumed.epoch))
     try:
         T.train(data, T.LPNTrainConfig(model=small_config(), batch_size=6), progress=False, devices="all")
     except ValueError as e:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -123,10 +124,10 @@ def _fit(tmp_path, name, **kw):
 
 def test_fit_resumes_exactly_and_logs_every_epoch(tmp_path):
     straight = _fit(tmp_path, "a")
-    assert int(straight["epoch"]) == 3
+    assert int(straight.epoch) == 3
     _fit(tmp_path, "b", stop_after_epochs=1)
     resumed = _fit(tmp_path, "b")
-    np.testing.assert_allclose(straight["w"], resumed["w"], rtol=1e-6)
+    np.testing.assert_allclose(straight.w, resumed.w, rtol=1e-6)
     with open(tmp_path / "b" / "log.csv") as f:
         rows = list(csv.reader(f))
     assert rows[0] == ["epoch", "train_loss", "seconds", "w0"] and [r[0] for r in rows[1:]] == ["1", "2", "3"]
@@ -138,8 +139,11 @@ def test_fit_stops_on_a_non_finite_loss():
     def plan_epoch(epoch):
         return 2, lambda state, a, b: (state, np.full(b - a, np.nan))
 
+    class Epochs(NamedTuple):
+        epoch: jax.Array
+
     with pytest.raises(FloatingPointError, match="epoch 1"):
-        scan.fit({"epoch": jnp.zeros((), jnp.int32)}, 2, plan_epoch, options=scan.FitOptions(progress=False))
+        scan.fit(Epochs(jnp.zeros((), jnp.int32)), 2, plan_epoch, options=scan.FitOptions(progress=False))
 
 
 def test_default_rates_are_the_2018_ones():

@@ -302,7 +302,7 @@ def trained_pfnn(mocap):
     state = train(data_from_dataset(dataset), TrainConfig(model=model, epochs=10, half_mirrored=True,
                                                           dropout_rate=0.1), None, progress=False)
     skeleton = datasets.load_clip(specs[0], fps=60.0)
-    return state["params"], dataset, skeleton
+    return state.params, dataset, skeleton
 
 
 def test_four_characters_follow_their_paths(trained_pfnn, tmp_path):

@@ -39,7 +39,7 @@ def test_training_beats_the_mean_predictor():
     data = synthetic()
     config = TrainConfig(model=SMALL, epochs=6, batch_size=16, learning_rate=3e-3, dropout_rate=0.0)
     state = train(data, config, progress=False)
-    val = validation_losses(state["params"], state["adapters"], data)
+    val = validation_losses(state.params, state.adapters, data)
     assert (val < 0.3 * mean_predictor_losses(data)).all(), val
 
 
@@ -50,7 +50,7 @@ def test_resume_gives_the_uninterrupted_result(tmp_path):
     with open(tmp_path / "b" / "log.csv") as f:
         assert len(list(csv.reader(f))) == 2
     resumed = train(data, CONFIG, tmp_path / "b", progress=False)
-    for a, b in zip(jax.tree.leaves(straight["params"]), jax.tree.leaves(resumed["params"]), strict=True):
+    for a, b in zip(jax.tree.leaves(straight.params), jax.tree.leaves(resumed.params), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
     with open(tmp_path / "b" / "log.csv") as f:
         rows = list(csv.DictReader(f))
@@ -72,7 +72,7 @@ def test_data_parallel_matches_one_device(tmp_path):
         data = synthetic()
         one = train(data, CONFIG, progress=False)
         two = train(data, CONFIG, progress=False, data_parallel=True)
-        for a, b in zip(jax.tree.leaves(one["params"]), jax.tree.leaves(two["params"])):
+        for a, b in zip(jax.tree.leaves(one.params), jax.tree.leaves(two.params)):
             np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
         print("ok")
     """)
@@ -97,7 +97,7 @@ def test_base_model_on_the_shared_sample_learns(mocap):
     data = data_from_dataset(dataset)
     assert len(data.styles) == 9
     state = train(data, TrainConfig(epochs=40, batch_size=8), progress=False)
-    val, mean = validation_losses(state["params"], state["adapters"], data), mean_predictor_losses(data)
+    val, mean = validation_losses(state.params, state.adapters, data), mean_predictor_losses(data)
     ok = np.isfinite(val)
     assert np.mean(val[ok]) < 0.5 * np.mean(mean[ok]), (val, mean)
 
@@ -109,9 +109,9 @@ def test_finetune_improves_a_new_adapter_with_the_base_frozen():
     state = train(data, CONFIG, progress=False)
     fresh = pfnn.init_adapter(jax.random.PRNGKey(9), SMALL)
     config = TrainConfig(model=SMALL, epochs=30, batch_size=16, learning_rate=3e-3, dropout_rate=0.0)
-    tuned = finetune_adapter(state["params"], fresh, data, 1, config)
+    tuned = finetune_adapter(state.params, fresh, data, 1, config)
     stacked = jax.tree.map(lambda v: v[None], tuned)
-    before = validation_losses(state["params"], jax.tree.map(lambda v: v[None], fresh), data._replace(
+    before = validation_losses(state.params, jax.tree.map(lambda v: v[None], fresh), data._replace(
         val_rows=(data.val_rows[1],)))
-    after = validation_losses(state["params"], stacked, data._replace(val_rows=(data.val_rows[1],)))
+    after = validation_losses(state.params, stacked, data._replace(val_rows=(data.val_rows[1],)))
     assert after[0] < 0.5 * before[0]

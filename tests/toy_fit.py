@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +13,13 @@ import optax
 from jaxstyle.train import scan
 
 
-def toy_fit(directory, run_config, *, poison_epoch: int | None = None, end_epoch=None, **options) -> dict:
+class ToyState(NamedTuple):
+    w: jax.Array
+    opt_state: Any
+    epoch: jax.Array
+
+
+def toy_fit(directory, run_config, *, poison_epoch: int | None = None, end_epoch=None, **options) -> ToyState:
     """Run (or resume) the toy run in ``directory``; from ``poison_epoch`` on, the weights turn
     NaN while the reported loss stays finite. ``end_epoch`` goes to :func:`scan.fit`, ``options``
     to its :class:`scan.FitOptions` (3 steps per chunk, no progress bar unless given)."""
@@ -27,15 +35,15 @@ def toy_fit(directory, run_config, *, poison_epoch: int | None = None, end_epoch
         keys = jax.random.split(jax.random.PRNGKey(epoch), 4)
 
         def chunk(state, a, b):
-            w, o, losses = run(state["w"], state["opt_state"], jnp.asarray(idx[a:b]), keys[a:b])
+            w, o, losses = run(state.w, state.opt_state, jnp.asarray(idx[a:b]), keys[a:b])
             if poison_epoch is not None and epoch >= poison_epoch:
                 w, losses = w * jnp.nan, jnp.nan_to_num(losses)
-            return {**state, "w": w, "opt_state": o}, losses
+            return state._replace(w=w, opt_state=o), losses
 
         return 4, chunk
 
     w = jnp.zeros(3)
-    state = {"w": w, "opt_state": opt.init(w), "epoch": jnp.zeros((), jnp.int32)}
+    state = ToyState(w, opt.init(w), jnp.zeros((), jnp.int32))
     options = {"log_every": 3, "progress": False, **options}
     return scan.fit(state, 3, plan_epoch, directory=directory, run_config=run_config, end_epoch=end_epoch,
                     options=scan.FitOptions(**options))

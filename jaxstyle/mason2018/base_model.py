@@ -157,7 +157,7 @@ def train_base(settings: BaseSettings, directory: str | os.PathLike, *, cache: s
         f"{model.output_size}, CP adapters of rank {model.rank}; {settings.epochs} epochs")
     state = train(data, config, directory, progress=progress)
     skeleton = datasets.load_clip(dataset.specs[0], fps=60.0)
-    return Base(state["params"], state["adapters"], (x_norm, y_norm), model, dataset, skeleton, settings)
+    return Base(state.params, state.adapters, (x_norm, y_norm), model, dataset, skeleton, settings)
 
 
 def _base_parts(settings: BaseSettings, cache, progress: bool):
@@ -193,10 +193,10 @@ def load_base(directory: str | os.PathLike, *, cache: str | os.PathLike | None =
         state = load_trained(config, dataset.styles, directory)
     except FileNotFoundError:
         state = None
-    done = 0 if state is None else int(state["epoch"])
+    done = 0 if state is None else int(state.epoch)
     if done < settings.epochs:
         raise PipelineError(f"the base in {directory} is unfinished ({done} of {settings.epochs} epochs): finish it "
                             f"with `jaxstyle train-base --run {directory.parent}` and the same settings")
     x_norm, y_norm = dataset.normalisers()
     skeleton = datasets.load_clip(dataset.specs[0], fps=60.0)
-    return Base(state["params"], state["adapters"], (x_norm, y_norm), model, dataset, skeleton, settings)
+    return Base(state.params, state.adapters, (x_norm, y_norm), model, dataset, skeleton, settings)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -101,13 +101,25 @@ def data_from_dataset(dataset, base=None) -> TrainData:
                      mirror if (mirror >= 0).all() else None)
 
 
-def init_state(key: jax.Array, config: TrainConfig, num_styles: int) -> dict:
-    """``{"params", "adapters" (stacked, leading axis = style), "opt_state", "epoch"}``."""
+class BaseState(NamedTuple):
+    """A base model's training state: the shared ``params``, the base styles' ``adapters``
+    (stacked, leading axis = style), the Adam ``opt_state`` of both and the epochs done
+    (``epoch``, int32). Checkpointed as the dict of these fields."""
+
+    params: dict
+    adapters: dict
+    opt_state: Any
+    epoch: jax.Array
+
+
+def init_state(key: jax.Array, config: TrainConfig, num_styles: int) -> BaseState:
+    """The :class:`BaseState` before training: random weights (:func:`jaxstyle.nn.pfnn.init_pfnn`,
+    one :func:`jaxstyle.nn.pfnn.init_adapter` per style), a fresh Adam state, epoch 0."""
     kp, ka = jax.random.split(key)
     params = pfnn.init_pfnn(kp, config.model)
     adapters = jax.vmap(lambda k: pfnn.init_adapter(k, config.model))(jax.random.split(ka, num_styles))
     opt_state = optax.adam(config.learning_rate).init((params, adapters))
-    return {"params": params, "adapters": adapters, "opt_state": opt_state, "epoch": jnp.zeros((), jnp.int32)}
+    return BaseState(params, adapters, opt_state, jnp.zeros((), jnp.int32))
 
 
 def _make_chunk_fn(config: TrainConfig, optimiser):
@@ -168,8 +180,8 @@ def _shard(batches: np.ndarray, data_parallel: bool):
 
 
 def train(data: TrainData, config: TrainConfig, directory: str | Path | None = None, *,
-          data_parallel: bool = False, progress: bool = True, stop_after_epochs: int | None = None) -> dict:
-    """Train (or resume) a base model; returns the final state.
+          data_parallel: bool = False, progress: bool = True, stop_after_epochs: int | None = None) -> BaseState:
+    """Train (or resume) a base model; returns the final :class:`BaseState`.
 
     Args:
       data: normalised arrays and row sets (:func:`data_from_dataset`).
@@ -195,14 +207,14 @@ def train(data: TrainData, config: TrainConfig, directory: str | Path | None = N
 
         def chunk(state, a, b):
             (params, adapters), opt_state, losses = run_chunk(
-                (state["params"], state["adapters"]), state["opt_state"], x, y, phase, batches_dev[a:b],
+                (state.params, state.adapters), state.opt_state, x, y, phase, batches_dev[a:b],
                 styles[a:b], jax.random.fold_in(key, a))
-            return {**state, "params": params, "adapters": adapters, "opt_state": opt_state}, losses
+            return state._replace(params=params, adapters=adapters, opt_state=opt_state), losses
 
         return len(batches), chunk
 
     def end_epoch(epoch, state, losses):
-        return _log_row(float(np.mean(losses)), validation_losses(state["params"], state["adapters"], data),
+        return _log_row(float(np.mean(losses)), validation_losses(state.params, state.adapters, data),
                         data.styles)
 
     return scan.fit(init_state(jax.random.PRNGKey(config.seed), config, len(data.styles)), config.epochs,
@@ -211,7 +223,7 @@ def train(data: TrainData, config: TrainConfig, directory: str | Path | None = N
                                                                   stop_after_epochs=stop_after_epochs))
 
 
-def load_trained(config: TrainConfig, styles, directory: str | Path) -> dict:
+def load_trained(config: TrainConfig, styles, directory: str | Path) -> BaseState:
     """The newest good state that :func:`train` saved in ``directory`` for ``config`` and ``styles``
     (read only: nothing is trained or written). A folder without a checkpoint raises
     ``FileNotFoundError``; one of another config, ``ValueError``."""

@@ -116,7 +116,7 @@ def train_model(data: LPNData, config: StyleModelConfig, directory: str | os.Pat
     write_data_file(data, directory, name)
     state = train_lpn.train(style_data, train_lpn.LPNTrainConfig(model=config, epochs=epochs, **train_options),
                             directory, progress=progress, devices=devices, compute_dtype=compute_dtype)
-    return Model(name, config, state["params"], style_data)
+    return Model(name, config, state.params, style_data)
 
 
 def write_data_file(data: LPNData, directory: str | os.PathLike, name: str = MODEL) -> Path:
@@ -210,7 +210,7 @@ def train_for(data: LPNData, config: StyleModelConfig, directory: str | os.PathL
             state = train_lpn.train(style_data, cfg, directory, progress=progress, stop_after_epochs=1)
         last_epoch_s = time.perf_counter() - e0
         log = read_log(directory)
-        epochs = int(state["epoch"])
+        epochs = int(state.epoch)
         if epochs >= budget.max_epochs:
             stopped = "max epochs"
             break
@@ -220,7 +220,7 @@ def train_for(data: LPNData, config: StyleModelConfig, directory: str | os.PathL
         if time.perf_counter() - t0 + last_epoch_s > budget.seconds:
             stopped = "budget"
             break
-    return BudgetRun(Model(name, config, state["params"], style_data), int(state["epoch"]),
+    return BudgetRun(Model(name, config, state.params, style_data), int(state.epoch),
                      time.perf_counter() - t0, stopped)
 
 

@@ -129,8 +129,8 @@ def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None 
     except FileNotFoundError:
         raise PipelineError(f"{directory} has no checkpoint yet: finish training it first") from None
     style_data = styledata.style_data(base, data.skeleton, backbone=config.model.backbone)
-    model = pipeline.Model(meta.get("name", pipeline.MODEL), config.model, state["params"], style_data)
-    return Loaded(model, data, directory, int(state["epoch"]))
+    model = pipeline.Model(meta.get("name", pipeline.MODEL), config.model, state.params, style_data)
+    return Loaded(model, data, directory, int(state.epoch))
 
 
 def _generators(model: pipeline.Model, path: Path) -> dict:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from pathlib import Path
-from typing import Sequence
+from typing import Any, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -75,10 +75,20 @@ def with_batch_size(config: LPNTrainConfig, batch_size: int) -> LPNTrainConfig:
 
 # --- training -----------------------------------------------------------------------------------
 
-def init_state(key: jax.Array, config: LPNTrainConfig) -> dict:
+class ModelState(NamedTuple):
+    """A 2022 style model's training state: its ``params``, the Adam ``opt_state`` and the epochs
+    done (``epoch``, int32). Checkpointed as the dict of these fields."""
+
+    params: dict
+    opt_state: Any
+    epoch: jax.Array
+
+
+def init_state(key: jax.Array, config: LPNTrainConfig) -> ModelState:
+    """The :class:`ModelState` before training: random weights
+    (:func:`jaxstyle.nn.style_models.init_model`), a fresh Adam state, epoch 0."""
     params = style_models.init_model(key, config.model)
-    return {"params": params, "opt_state": optax.adam(config.learning_rate).init(params),
-            "epoch": jnp.zeros((), jnp.int32)}
+    return ModelState(params, optax.adam(config.learning_rate).init(params), jnp.zeros((), jnp.int32))
 
 
 COMPUTE_DTYPES = ("float32", "bfloat16")
@@ -144,8 +154,8 @@ def epoch_batches(data: StyleData, config: LPNTrainConfig, epoch: int) -> tuple[
 
 def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None = None, *, progress: bool = True,
           stop_after_epochs: int | None = None, compute_dtype: str = "float32",
-          devices: str | int | None = None) -> dict:
-    """Train (or resume) a style model; returns ``{"params", "opt_state", "epoch"}``.
+          devices: str | int | None = None) -> ModelState:
+    """Train (or resume) a style model; returns the final :class:`ModelState`.
 
     ``directory`` keeps ``config.json``, orbax checkpoints (one per epoch, the last 3 kept) and
     ``log.csv`` (train loss, MSE and BLL, validation MSE and BLL, seconds per epoch); a second call
@@ -189,18 +199,18 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
         styles_dev, clips_dev, keys = shard.replicate((jnp.asarray(styles), jnp.asarray(clips), keys), mesh)
 
         def run_chunk(state, a, b):
-            params, opt_state = shard.replicate((state["params"], state["opt_state"]), mesh)
+            params, opt_state = shard.replicate((state.params, state.opt_state), mesh)
             params, opt_state, out = _train_chunk(
                 params, opt_state, arrays, batches_dev[a:b], styles_dev[a:b], clips_dev[a:b], keys[a:b],
                 jnp.float32(config.dropout_rate), jnp.float32(config.bone_loss_weight),
                 jnp.float32(config.input_noise), feedback, config=config.model, bones=bones,
                 learning_rate=config.learning_rate, compute_dtype=compute_dtype, rollout_steps=config.rollout_steps)
-            return {**state, "params": params, "opt_state": opt_state}, out
+            return state._replace(params=params, opt_state=opt_state), out
 
         return len(batches), run_chunk
 
     def end_epoch(epoch, state, out):
-        val = evaluate(state["params"], config.model, data, "validation")
+        val = evaluate(state.params, config.model, data, "validation")
         return {"train_loss": f"{out[:, 0].mean():.6f}", "train_mse": f"{out[:, 1].mean():.6f}",
                 "train_bll": f"{out[:, 2].mean():.6f}", "val_mse": f"{np.nanmean(val['mse']):.6f}",
                 "val_bll": f"{np.nanmean(val['bll']):.6f}"}
@@ -228,7 +238,7 @@ def _run_config(config: LPNTrainConfig, styles: Sequence[str], compute_dtype: st
 
 
 def load(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str], *,
-         compute_dtype: str = "float32") -> dict:
+         compute_dtype: str = "float32") -> ModelState:
     """The last checkpoint of a :func:`train` run folder."""
     ckpt = Checkpointer(directory, _run_config(config, styles, compute_dtype))
     try:

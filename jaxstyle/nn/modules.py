@@ -193,7 +193,7 @@ class LPNFiLM(nnx.Module):
     @classmethod
     def from_params(cls, config: style_models.StyleModelConfig, params: dict) -> "LPNFiLM":
         """The module holding the pure ``params`` of :func:`jaxstyle.nn.style_models.init_model`
-        (e.g. ``state["params"]`` of :func:`jaxstyle.mason2022.train.init_state`); shapes are
+        (e.g. ``state.params`` of :func:`jaxstyle.mason2022.train.init_state`); shapes are
         checked against ``config``."""
         if config.modulation != "film":
             raise ValueError(f"LPNFiLM is a FiLM model: config.modulation must be 'film', got {config.modulation!r}")

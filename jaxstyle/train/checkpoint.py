@@ -110,6 +110,13 @@ def json_text(value: Any, **kwargs) -> str:
     return json.dumps(finite_or_none(_jsonable(value)), allow_nan=False, **kwargs)
 
 
+def saved_form(tree: Any) -> Any:
+    """What is written for ``tree``: a training state held in a NamedTuple (e.g.
+    :class:`jaxstyle.mason2018.train.BaseState`) as the dict of its fields, anything else as it is;
+    so the files of a state are the same whichever container holds its arrays."""
+    return tree._asdict() if isinstance(tree, tuple) and hasattr(tree, "_asdict") else tree
+
+
 def non_finite_leaves(tree: Any) -> list[str]:
     """The key paths (``params/w``...) of the floating-point leaves of ``tree`` holding a NaN or
     an infinity."""
@@ -176,6 +183,7 @@ class Checkpointer:
         """Save ``state`` as ``step``; a tree with NaN or infinity is refused (:class:`NonFiniteError`).
         ``checked_finite=True`` skips that scan for a caller that has just made it on this very tree
         (:func:`jaxstyle.train.scan.fit`), so a large state is not read twice per epoch."""
+        state = saved_form(state)
         bad = [] if checked_finite else non_finite_leaves(state)
         if bad:
             raise NonFiniteError(f"refusing to save checkpoint step {step} in {self.steps_dir}: "
@@ -186,14 +194,16 @@ class Checkpointer:
         self._manager.wait_until_finished()
 
     def _restore_step(self, like: Any, step: int) -> Any:
-        """Step ``step`` restored and checked, or a :class:`CheckpointError` saying what is wrong."""
+        """Step ``step`` restored and checked (in ``like``'s container), or a :class:`CheckpointError`
+        saying what is wrong."""
+        wanted = saved_form(like)
         folder = self.steps_dir / str(step)
         if folder.is_dir() and not any(folder.iterdir()):
             raise CheckpointError("the step folder is empty")
         if jax.process_count() > 1:  # restored on this process alone, as host arrays
-            abstract = jax.tree.map(lambda v: np.zeros(np.shape(v), getattr(v, "dtype", np.float32)), like)
+            abstract = jax.tree.map(lambda v: np.zeros(np.shape(v), getattr(v, "dtype", np.float32)), wanted)
         else:
-            abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, like)
+            abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, wanted)
         try:
             state = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
         except Exception as e:  # orbax/tensorstore raise many types for damaged files
@@ -205,14 +215,14 @@ class Checkpointer:
                     f"{shapes.group(2)} there and {shapes.group(1)} in this model (written by another model, e.g. a "
                     "base of other sizes)") from None
             raise CheckpointError(_reason(e)) from e
-        other = _mismatch(state, like)
+        other = _mismatch(state, wanted)
         if other is not None:
             raise CheckpointMismatchError(f"checkpoint step {step} in {self.steps_dir} is of a model of other sizes: "
                                           f"{other} (written by another model, e.g. a base of other sizes)")
         bad = non_finite_leaves(state)
         if bad:
             raise CheckpointError(f"{', '.join(bad[:5])} hold NaN or infinity")
-        return state
+        return type(like)(**state) if wanted is not like else state
 
     def restore(self, like: Any, step: int | None = None) -> Any:
         """The state saved at ``step`` (default: the newest good step), with the structure of ``like``.

@@ -334,16 +334,18 @@ class FitOptions:
     say: Callable[[str], None] | None = print
 
 
-def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callable]], *,
+def fit(state: Any, epochs: int, plan_epoch: Callable[[int], tuple[int, Callable]], *,
         directory: str | Path | None = None, run_config: Any = None,
-        end_epoch: Callable[[int, dict, np.ndarray], dict] | None = None,
-        options: FitOptions = FitOptions()) -> dict:
+        end_epoch: Callable[[int, Any, np.ndarray], dict] | None = None,
+        options: FitOptions = FitOptions()) -> Any:
     """The epoch loop of a training run; returns the final state.
 
     Args:
-      state: the initial state, a dict with an ``"epoch"`` entry (epochs done); replaced by the
-        last checkpoint of ``directory`` when there is one (resuming).
-      epochs: train until ``state["epoch"]`` reaches this.
+      state: the initial state, a NamedTuple with an ``epoch`` field (epochs done, an int32 array;
+        e.g. :class:`jaxstyle.mason2018.train.BaseState`); replaced by the last checkpoint of
+        ``directory`` when there is one (resuming; saved as the dict of its fields,
+        :func:`jaxstyle.train.checkpoint.saved_form`).
+      epochs: train until ``state.epoch`` reaches this.
       plan_epoch: ``plan_epoch(epoch) -> (num_steps, run_chunk)``; ``run_chunk(state, a, b)`` runs
         steps ``a..b-1`` of the epoch (one compiled ``lax.scan``) and returns the new state and
         the per-step losses ``(b - a,)`` or ``(b - a, K)`` (column 0 the training loss).
@@ -362,8 +364,8 @@ def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callabl
             state = ckpt.restore(state)
             ckpt.set_aside_after(ckpt.restored_step)
             if say is not None:
-                say(f"resumed from step {ckpt.restored_step} in {ckpt.steps_dir} (epoch {int(state['epoch'])} done)")
-        start = int(state["epoch"])
+                say(f"resumed from step {ckpt.restored_step} in {ckpt.steps_dir} (epoch {int(state.epoch)} done)")
+        start = int(state.epoch)
         log_path = Path(directory) / "log.csv" if directory is not None else None
         if log_path is not None:
             runlog.truncate_log(log_path, start)
@@ -387,7 +389,7 @@ def fit(state: dict, epochs: int, plan_epoch: Callable[[int], tuple[int, Callabl
             out = np.concatenate(parts)
             if check_finite:
                 _check_finite(epoch, out, state, ckpt)
-            state = {**state, "epoch": jnp.asarray(epoch + 1, jnp.int32)}
+            state = state._replace(epoch=jnp.asarray(epoch + 1, jnp.int32))
             if ckpt is not None:
                 row = dict(end_epoch(epoch, state, out)) if end_epoch is not None else {}
                 ckpt.save(epoch + 1, state, checked_finite=check_finite)  # _check_finite scanned it
