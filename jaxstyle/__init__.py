@@ -50,7 +50,7 @@ _NAMES = {
     "PFNNModel": "control.controller",
     "PFNNModule": "nn.modules",
     "PathSignal": "control.paths",
-    "RolloutCheck": "mason2018.selection",
+    "RolloutCheck": "train.defaults",
     "SinusoidConfig": "labels.sinusoid",
     "SinusoidFit": "labels.sinusoid",
     "StyleModelConfig": "nn.style_models",

@@ -23,6 +23,7 @@ from jaxstyle.mason2018 import base_model
 from jaxstyle.motion.bvh import read_bvh
 from jaxstyle.motion.kinematics import global_positions
 from jaxstyle.output import drive, quality, synthesis
+from jaxstyle.train import defaults
 
 # --- the toy family: everything a model family provides, in this file ----------------------------
 
@@ -170,7 +171,7 @@ def test_a_toy_model_family_is_checked_like_a_fine_tuning_sweep_by_the_shared_co
     pos = global_positions(skeleton)
     feet = list(FootJoints.find(skeleton).ankles) + list(FootJoints.find(skeleton).toes)
     floor = floor_heights(pos[:, feet, UP_AXIS])
-    check = check_lib.RolloutCheck(seconds=2.0, turn_deg_per_s=30.0)
+    check = defaults.RolloutCheck(seconds=2.0, turn_deg_per_s=30.0)
     judging = check_lib.Judging(skeleton, fps, upm, check)
     speed = 1.2 * upm
     starts = [check_lib.StyleStart(model.initial_state(dataset, row, 1.0), speed, floor, 0.6) for row in (0, 40)]

@@ -21,6 +21,7 @@ import pytest
 import jaxstyle as js
 from jaxstyle import cli
 from jaxstyle.data import clips
+from jaxstyle.train import defaults
 
 # the tiny few-shot clips hold fewer rows than a cycle's worth for validation; selection says so
 pytestmark = pytest.mark.filterwarnings("ignore:style .* the last 1 cycle:UserWarning")
@@ -367,7 +368,7 @@ def test_a_set_that_failed_every_check_is_refused_unless_allowed(demo_run, tmp_p
     base = base_model.load_base(run / "base", cache=run / "cache", progress=False)
     _, shots = pipeline.load_sweep(run / "sweep", base, cache=run / "cache")
     config = fewshot.SweepConfig(model=base.model, rates=(0.3, 0.5), epochs=1)
-    impossible = selection.RolloutCheck(max_bone_error=-1.0)
+    impossible = defaults.RolloutCheck(max_bone_error=-1.0)
     result = selection.fewshot_sweep(base.params, base.normalisers, shots, base.skeleton, config,
                                      selection.FewshotOptions(check=impossible, run=scan.GridRun(chunk_steps=100)))
     assert not result.chosen_passed.any()

@@ -14,6 +14,7 @@ from jaxstyle.control.model import rollout
 from jaxstyle.data.clips import ClipSpec
 from jaxstyle.data.datasets import load_clip
 from jaxstyle.data.normalise import Normaliser
+from jaxstyle.data.pfnn_features import PFNNLayout
 from jaxstyle.motion import kinematics
 from jaxstyle.motion.character_frame import CharacterFrames, rotate_yaw, to_local
 from jaxstyle.nn import pfnn
@@ -82,7 +83,7 @@ def test_carried_joints_are_the_pfnn_demos_blend_in_world_space(clip):
     m, phase, x, y, t = clip
     rng = np.random.default_rng(0)
     J = m.num_joints
-    g = controller.PFNNLayout(J).output_groups
+    g = PFNNLayout(J).output_groups
     state = controller.initial_state(x[5], phase[t[5]], J)
     state = state._replace(hist_xz=state.hist_xz + jnp.asarray([3.0, -2.0]), hist_yaw=state.hist_yaw + 0.7)
     out = np.array(y[5], dtype=np.float64)

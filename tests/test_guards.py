@@ -18,6 +18,7 @@ import pytest
 import jaxstyle as js
 from jaxstyle.data import clips as C
 from jaxstyle.data import datasets as D
+from jaxstyle.train import defaults
 from jaxstyle.train.checkpoint import Checkpointer
 from tests.toy_fit import toy_fit
 
@@ -229,7 +230,7 @@ def test_chosen_rates_json_is_strict_with_null_for_a_missing_loss(tmp_path):
     result = selection.SweepResult(
         styles=("a", "b"), rates=(0.0, 0.1), adapters={"u": np.zeros((S, R, 3), np.float32)},
         train_loss=np.array([[0.5, np.nan], [0.4, 0.3]]), validation_loss=np.array([[np.nan, np.nan], [0.2, 0.1]]),
-        rollout={k: np.ones((S, R)) for k in selection.ROLLOUT_FIELDS}, reference={},
+        rollout={k: np.ones((S, R)) for k in defaults.ROLLOUT_FIELDS}, reference={},
         chosen=np.array([0, 1]), chosen_passed=np.array([False, True]), train_rows=(3, 4), validation_rows=(0, 2),
         seconds={"sweep": float("nan")})
     paths = sweep_files.write_report(result, tmp_path, fewshot.SweepConfig())

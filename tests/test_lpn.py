@@ -19,6 +19,7 @@ from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import lpn, style_models
 from jaxstyle.nn.style_models import StyleModelConfig
+from jaxstyle.train import scan
 
 KEY = jax.random.PRNGKey(0)
 SMALL_FILM = film.FiLMConfig(clip_frames=16, clip_features=6, filters=4, width=5, hidden=8, film_size=32)
@@ -326,7 +327,7 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
     assert per_step.shape == (2, 2, 16) and np.isfinite(per_step).all()
     # style 1, rate index 1, run alone through the same scan: the sweep is a vmap of single runs
     batches, clips, mask = finetune.finetune_batches(data, ft)
-    keys = jax.random.split(train_lpn.scan.pair_key(ft.seed, 1, 1), batches.shape[1])
+    keys = jax.random.split(scan.pair_key(ft.seed, 1, 1), batches.shape[1])
     frozen = {k: v for k, v in params.items() if k != "style"}
     arrays = styledata.device_arrays(data)
 
@@ -337,9 +338,9 @@ def test_film_finetune_sweep_equals_single_runs_and_freezes_the_network():
                                    lpn_loss.LossWeights(jnp.float32(0.3), jnp.float32(1.0)), data.bones)[0]
 
     gen0 = params["style"]["generator"]
-    one, _, losses = jax.jit(lambda g: train_lpn.scan.train_scan(
+    one, _, losses = jax.jit(lambda g: scan.train_scan(
         loss_fn, g, optax.adam(1e-3).init(g),
-        train_lpn.scan.Steps((jnp.asarray(batches[1]), jnp.asarray(clips[1])), jnp.asarray(mask[1]), keys),
+        scan.Steps((jnp.asarray(batches[1]), jnp.asarray(clips[1])), jnp.asarray(mask[1]), keys),
         optimizer=1e-3))(gen0)
     np.testing.assert_allclose(per_step[1, 1], losses, rtol=2e-5, atol=1e-6)
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a[1, 1], b, rtol=1e-4, atol=1e-6), gens, one)

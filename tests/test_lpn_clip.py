@@ -24,6 +24,7 @@ from jaxstyle.data.lpn_features import bone_points
 from jaxstyle.mason2022 import finetune, pipeline, report, styledata
 from jaxstyle.nn import film_generator as film
 from jaxstyle.output import check as check_lib
+from jaxstyle.train import defaults
 from jaxstyle.train.defaults import PHASE_FLOOR
 
 TINY = {"hidden": 8, "generator_hidden": 16, "filters": 4}
@@ -65,7 +66,7 @@ def test_film_sweep_from_a_user_clip_chooses_a_rate_and_writes_its_generator(fol
     rates = (0.1, 0.5)
     result, checked, paths = finetune.finetune_clips(m, data, tmp_path / "out", rates=rates, steps=3, progress=False)
     assert result.styles == ("Limping_FW",) and result.rates == rates and result.steps == 3
-    for k in finetune.CHECK_FIELDS:
+    for k in defaults.ROLLOUT_FIELDS:
         assert checked[k].shape == (1, 2)
     # the choice: the lowest validation loss among the rates that passed the check (else among all)
     val = result.after["validation"]["mse"] + result.after["validation"]["bll"]

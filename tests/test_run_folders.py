@@ -20,6 +20,7 @@ from jaxstyle.data import folders
 from jaxstyle.data.folders import PipelineError
 from jaxstyle.mason2018 import fewshot, selection, sweep_files
 from jaxstyle.nn import pfnn
+from jaxstyle.train import defaults
 
 MODEL = pfnn.PFNNConfig(input_size=6, hidden_size=8, output_size=5, rank=2)
 
@@ -32,7 +33,7 @@ def fake_result(styles, rates=(0.1, 0.5), seed=0) -> selection.SweepResult:
                             *[pfnn.init_adapter(k, MODEL) for k in keys])
     rng = np.random.default_rng(seed)
     val = rng.uniform(0.1, 1.0, (S, R))
-    rollout = {k: rng.uniform(0, 1, (S, R)) for k in selection.ROLLOUT_FIELDS}
+    rollout = {k: rng.uniform(0, 1, (S, R)) for k in defaults.ROLLOUT_FIELDS}
     rollout["passed"] = np.ones((S, R), bool)
     return selection.SweepResult(tuple(styles), tuple(rates), adapters, val + 0.1, val, rollout, {},
                                  np.argmin(val, 1), np.ones(S, bool), (100,) * S, (30,) * S, {"sweep": 1.0})

@@ -14,7 +14,7 @@ import numpy as np
 import optax
 import pytest
 
-from jaxstyle.train import scan
+from jaxstyle.train import defaults, scan
 from tests.toy_fit import toy_fit
 
 D, N, B, LR = 4, 40, 5, 0.05
@@ -149,7 +149,7 @@ def test_fit_stops_on_a_non_finite_loss():
 def test_default_rates_are_the_2018_ones():
     from jaxstyle.mason2018 import fewshot
 
-    assert scan.DEFAULT_RATES == (0.3, 0.5, 0.7) == fewshot.SweepConfig().rates
+    assert defaults.DEFAULT_RATES == (0.3, 0.5, 0.7) == fewshot.SweepConfig().rates
 
 
 def test_row_buckets_are_powers_of_two_then_eighths():

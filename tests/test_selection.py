@@ -15,7 +15,7 @@ from jaxstyle.data.clips import ClipSpec
 from jaxstyle.mason2018 import fewshot, selection, sweep_files
 from jaxstyle.nn import pfnn
 from jaxstyle.output import check as check_lib
-from jaxstyle.train import scan
+from jaxstyle.train import defaults, scan
 from tests.test_fewshot import SMALL, _data
 
 
@@ -106,11 +106,11 @@ def test_fewshot_sweep_end_to_end_writes_a_report(fewshot_set, tmp_path):
                             rank=8)
     params = pfnn.init_pfnn(jax.random.PRNGKey(0), model)
     config = fewshot.SweepConfig(model=model, epochs=2, rates=(0.3, 0.7))
-    options = selection.FewshotOptions(check=selection.RolloutCheck(seconds=1.0), run=scan.GridRun(chunk_steps=100))
+    options = selection.FewshotOptions(check=defaults.RolloutCheck(seconds=1.0), run=scan.GridRun(chunk_steps=100))
     result = selection.fewshot_sweep(params, dataset.normalisers(), dataset, skeleton, config, options)
     assert result.styles == ("Elated", "Rushed")
     assert result.validation_loss.shape == (2, 2) and np.isfinite(result.validation_loss).all()
-    for k in selection.ROLLOUT_FIELDS:
+    for k in defaults.ROLLOUT_FIELDS:
         assert result.rollout[k].shape == (2, 2)
     # the validation loss is the MSE of the held-out rows, recomputed here without vmap
     data = selection.fewshot_data(dataset, dataset.normalisers())
@@ -133,7 +133,7 @@ def test_fewshot_sweep_end_to_end_writes_a_report(fewshot_set, tmp_path):
 
 
 def test_each_check_criterion_can_fail_a_pair():
-    check = selection.RolloutCheck()
+    check = defaults.RolloutCheck()
     good = {"finite": 1.0, "bone_error": 0.03, "contact_fraction": 0.95, "skating_m_s": 0.3, "progress": 1.0}
     ref = {"contact_fraction": np.array([1.0]), "skating_m_s": np.array([0.1]), "speed_m_s": np.array([1.2]),
            "base_skating_m_s": np.array([0.3]), "base_bone_error": np.array([0.03])}
@@ -171,7 +171,7 @@ def test_judge_pairs_measures_every_pair_against_the_base_column(mocap):
     feet = list(FootJoints.find(motion).ankles) + list(FootJoints.find(motion).toes)
     floor = floor_heights(pos[:, feet, UP_AXIS])
     origin = pos[:, 0, [0, 2]]
-    check = selection.RolloutCheck(seconds=len(pos) / fps)
+    check = defaults.RolloutCheck(seconds=len(pos) / fps)
     speed = float(np.sum(np.linalg.norm(np.diff(origin, axis=0), axis=-1))) / check.seconds  # units / s
     real = metrics.positions_foot_stats(pos, motion, fps, floor, units_per_meter=upm, tolerance_m=check.tolerance_m)
     sliding = pos.copy()

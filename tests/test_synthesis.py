@@ -331,7 +331,7 @@ def test_four_characters_follow_their_paths(trained_pfnn, tmp_path):
     assert np.linalg.norm(np.asarray(out.origin[0, -1])) / upm > 4.0
 
     # export: the BVH reads back with the skeleton's bone lengths and the rollout's root path
-    from jaxstyle.output import export
+    from jaxstyle.output import export, footlock
 
     one = jax.tree.map(lambda v: v[1], out)
     written = export.save_rollout(tmp_path / "circle", one, skeleton, foot_lock=True)
@@ -349,7 +349,7 @@ def test_four_characters_follow_their_paths(trained_pfnn, tmp_path):
     raw = js.read_bvh(export.save_rollout(tmp_path / "raw", one, skeleton, foot_lock=False)["bvh"])
     decoded = export.rollout_motion(one, skeleton)
     np.testing.assert_allclose(js.global_positions(raw), js.global_positions(decoded), atol=1e-3)
-    legs = export.footlock.leg_rig(skeleton)
+    legs = footlock.leg_rig(skeleton)
     others = [j for j in range(skeleton.num_joints) if j not in (*legs.hip, *legs.knee, *legs.ankle)]
     np.testing.assert_allclose(back.rotations[:, others], raw.rotations[:, others], atol=1e-5)
     moved = np.linalg.norm(js.global_positions(back) - js.global_positions(raw), axis=-1).max() / upm

@@ -18,6 +18,8 @@ from jaxstyle.data import folders, procedural
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2022 import finetune, pipeline, styledata
 from jaxstyle.mason2022 import synthesis as synthesis2022
+from jaxstyle.mason2022 import train as train_lpn
+from jaxstyle.nn import film_generator as film
 from jaxstyle.output import metrics, synthesis
 from jaxstyle.output.drive import blend_character
 from jaxstyle.output.synthesis import quality_table
@@ -75,11 +77,11 @@ def test_characters_use_the_style_film_vectors_and_the_finetuned_generator(run_d
     _, model, _, result = run_dir
     chars = synthesis2022.characters(loaded, styles=["Neutral"], new_styles=["Limping"])
     s = model.data.styles.index("Neutral")
-    np.testing.assert_allclose(chars[0].conditioning, pipeline.train_lpn.film_vectors(model.params, model.data)[s],
+    np.testing.assert_allclose(chars[0].conditioning, train_lpn.film_vectors(model.params, model.data)[s],
                                rtol=1e-6)
     # the new style: the mean FiLM vector of its training clips under its fine-tuned generator
     tuned = result.params(model, "Limping")
-    vec = pipeline.film.clip_films(tuned["style"]["generator"], result.data.clips[result.data.train_clips[0]])
+    vec = film.clip_films(tuned["style"]["generator"], result.data.clips[result.data.train_clips[0]])
     np.testing.assert_allclose(chars[1].conditioning, vec.mean(axis=0), rtol=1e-5, atol=1e-6)
     assert chars[1].title.startswith("Limping (fine-tuned, rate ")
     with pytest.raises(folders.PipelineError, match="unknown style 'Nope'"):

@@ -13,7 +13,7 @@ import numpy as np
 from jaxstyle.mason2018 import fewshot
 from jaxstyle.mason2018.train import TrainConfig, finetune_adapter
 from jaxstyle.nn import pfnn
-from jaxstyle.train.scan import DEFAULT_RATES
+from jaxstyle.train.defaults import DEFAULT_RATES
 
 
 class Bench(NamedTuple):

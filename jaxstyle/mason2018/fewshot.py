@@ -33,7 +33,8 @@ import optax
 
 from jaxstyle.nn import pfnn
 from jaxstyle.train import scan
-from jaxstyle.train.scan import DEFAULT_RATES, pair_key
+from jaxstyle.train.defaults import DEFAULT_RATES
+from jaxstyle.train.scan import pair_key
 
 
 @dataclasses.dataclass(frozen=True)

@@ -16,7 +16,7 @@ The paper chose each new style's dropout rate by eye. jaxstyle chooses it automa
    frozen base without an adapter (the style-agnostic "average motion") walks the same path from
    the same start. A pair passes (:func:`jaxstyle.output.check.passes_check`, the measures of
    :func:`jaxstyle.output.check.rollout_measures`, both shared with the 2022 sweep) when
-   (:class:`RolloutCheck`) every output is finite, bones keep
+   (:class:`jaxstyle.train.defaults.RolloutCheck`) every output is finite, bones keep
    their length (mean relative error <= ``max_bone_error``), feet touch the floor (fraction of
    frames with a foot on the floor >= ``min_contact_ratio`` x the real clip's), the adapter does
    not make feet slide (median speed of feet on the floor <= ``max_skating_ratio`` x the base's
@@ -57,7 +57,8 @@ from jaxstyle.motion import Motion
 from jaxstyle.nn import pfnn
 from jaxstyle.output import metrics
 from jaxstyle.output.check import Judging, StyleStart, check_pairs, choose_rates, failed_criteria
-from jaxstyle.train import defaults, scan
+from jaxstyle.train import scan
+from jaxstyle.train.defaults import ROLLOUT_FIELDS, RolloutCheck
 
 # --- 1. hold-out -----------------------------------------------------------------------------------
 
@@ -128,13 +129,11 @@ def validation_grid(params: dict, adapters_SxR: dict, data: TrainData) -> np.nda
 
 # --- 4. closed-loop check ----------------------------------------------------------------------------
 
-RolloutCheck = defaults.RolloutCheck  # the thresholds both papers' checks share (see the module docstring)
-ROLLOUT_FIELDS = defaults.ROLLOUT_FIELDS
 
 
 class RolloutChecks(NamedTuple):
     """:func:`check_rollouts`' figures: per (set, rate) pair the ``measures`` ``(S, R)`` named by
-    :data:`ROLLOUT_FIELDS`, and per set the ``references`` ``(S,)`` (the real training rows' and
+    :data:`jaxstyle.train.defaults.ROLLOUT_FIELDS`, and per set the ``references`` ``(S,)`` (the real training rows' and
     the base's on the same path)."""
 
     measures: dict[str, np.ndarray]
@@ -146,7 +145,7 @@ def check_rollouts(model: PFNNModel, adapters_SxR: dict, dataset: Dataset, data:
     """The closed-loop check of every pair of the base ``model`` with its ``(S, R)`` adapters
     (:func:`jaxstyle.output.check.check_pairs`, the base without an adapter as the last column: a
     zero adapter, whose residual is exactly zero) and its measures: ``(S, R)`` arrays named by
-    :data:`ROLLOUT_FIELDS`, and per-style reference figures: of the real training rows
+    :data:`jaxstyle.train.defaults.ROLLOUT_FIELDS`, and per-style reference figures: of the real training rows
     (``contact_fraction``, ``skating_m_s``, ``speed_m_s``; their feet as the network's output rows
     give them) and of the base on the same path (``base_skating_m_s``, ``base_bone_error``). Each
     style starts at its first training row."""
@@ -223,7 +222,7 @@ class FewshotOptions:
       styles: a subset of the dataset's styles (``None``: all).
       holdout: keyword arguments of :func:`holdout_rows` (the validation rows).
       fps: the rows' frame rate.
-      check: the closed-loop check's thresholds (:class:`RolloutCheck`).
+      check: the closed-loop check's thresholds (:class:`jaxstyle.train.defaults.RolloutCheck`).
       run: steps per compiled call between progress updates, sharding of the styles over all
         devices, progress bars (:class:`jaxstyle.train.scan.GridRun`; here with progress bars and
         100 steps per call by default).

@@ -18,9 +18,10 @@ import numpy as np
 
 from jaxstyle.data.folders import PipelineError
 from jaxstyle.mason2018 import fewshot
-from jaxstyle.mason2018.selection import ROLLOUT_FIELDS, SweepResult
+from jaxstyle.mason2018.selection import SweepResult
 from jaxstyle.nn import pfnn
 from jaxstyle.train.checkpoint import Checkpointer, json_text, read_json
+from jaxstyle.train.defaults import ROLLOUT_FIELDS
 
 
 def write_report(result: SweepResult, directory: str | os.PathLike, config: fewshot.SweepConfig, *,

@@ -32,9 +32,9 @@ from jaxstyle.mason2022.styledata import StaticBones, StyleData, bones_of, devic
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output.check import Judging, StyleStart, check_pairs, choose_rates, failed_criteria
-from jaxstyle.train import defaults, scan
+from jaxstyle.train import scan
 from jaxstyle.train.checkpoint import json_text
-from jaxstyle.train.defaults import FILM_DEFAULT_RATES
+from jaxstyle.train.defaults import FILM_DEFAULT_RATES, ROLLOUT_FIELDS, RolloutCheck
 
 FINETUNE_RATES = FILM_DEFAULT_RATES
 """Dropout rates of the FiLM fine-tuning sweep."""
@@ -235,23 +235,21 @@ def _min_clip_seconds(clip_frames: int, fps: float = 60.0) -> float:
     return (datasets.min_frames(fps) + clip_frames / 0.8 + clip_frames / 2) / fps
 
 
-ClosedLoopCheck = defaults.RolloutCheck  # the 2018 sweep's check thresholds, one definition for both papers
-CHECK_FIELDS = defaults.ROLLOUT_FIELDS
-DEFAULT_CHECK = ClosedLoopCheck()
 
 
 def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
-                      check: ClosedLoopCheck = DEFAULT_CHECK) -> dict[str, np.ndarray]:
+                      check: RolloutCheck | None = None) -> dict[str, np.ndarray]:
     """Drive every (new style, rate) of a fine-tuning sweep and, per new style, the model before
     fine-tuning (:func:`jaxstyle.output.check.check_pairs`, one batched rollout); returns ``(S, R)``
-    arrays named by :data:`CHECK_FIELDS` and per style ``(S,)`` references
+    arrays named by :data:`jaxstyle.train.defaults.ROLLOUT_FIELDS` and per style ``(S,)`` references
     ``real_contact_fraction``, ``speed_m_s``, ``base_skating_m_s``, ``base_bone_error`` (see
-    :class:`ClosedLoopCheck`; the measures and the pass rule are the 2018 sweep's,
+    :class:`jaxstyle.train.defaults.RolloutCheck`; the measures and the pass rule are the 2018 sweep's,
     :mod:`jaxstyle.output.check`). Each style starts at the first frame of its first training clip
     (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.initial_state`: that frame's pose, local
     and global phases); the capture's feet are measured on that clip's BVH. The characters run the
     default runtime, local phases floored (:data:`jaxstyle.train.defaults.PHASE_FLOOR`), as
     synthesis does."""
+    check = check or RolloutCheck()
     from jaxstyle.control import lpn_controller
     from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
     from jaxstyle.motion.kinematics import UP_AXIS, global_positions
@@ -295,7 +293,7 @@ class FinetunedClips(NamedTuple):
 
 def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
                    rates: Sequence[float] = FINETUNE_RATES, steps: int = 150, epochs: int = 100,
-                   check: ClosedLoopCheck = DEFAULT_CHECK, progress: bool = True
+                   check: RolloutCheck | None = None, progress: bool = True
                    ) -> FinetunedClips:
     """New styles from the user's clips (``data.new``, :func:`user_clip_data`) the 2022 way: the
     FiLM generator alone fine-tuned for every (clip style, rate) in one compiled sweep
@@ -305,6 +303,7 @@ def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
     check), ``generators/<style>.npz`` (the chosen generator alone, :func:`load_generator` reads it)
     and ``clips.json`` (the clips, the rates, the base clips: enough to rebuild the new styles' rows)."""
     result = generator_sweep(model, data, rates=rates, steps=steps, epochs=epochs, progress=progress)
+    check = check or RolloutCheck()
     checked = closed_loop_check(model, result, data, check)
     val = result.after["validation"]["mse"] + result.after["validation"]["bll"]
     chosen, passed = choose_rates(val, checked["passed"])
@@ -314,10 +313,10 @@ def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
     saved = json.loads(paths["chosen"].read_text())
     for s, style in enumerate(result.styles):
         saved[style]["check_passed"] = bool(passed[s])
-        saved[style]["check"] = {k: _number(checked[k][s, chosen[s]]) for k in CHECK_FIELDS}
+        saved[style]["check"] = {k: _number(checked[k][s, chosen[s]]) for k in ROLLOUT_FIELDS}
         if not passed[s]:  # every rate failed: what the chosen one failed, for the refusal
             saved[style]["failed"] = failed_criteria(
-                {k: float(checked[k][s, chosen[s]]) for k in CHECK_FIELDS if k != "passed"},
+                {k: float(checked[k][s, chosen[s]]) for k in ROLLOUT_FIELDS if k != "passed"},
                 float(checked["real_contact_fraction"][s]), float(checked["base_skating_m_s"][s]),
                 float(checked["speed_m_s"][s]), check)
     paths["chosen"].write_text(json_text(saved))

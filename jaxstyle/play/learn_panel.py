@@ -15,6 +15,7 @@ from pathlib import Path
 
 from jaxstyle.play import guard, learn
 from jaxstyle.play.models import PFNN, PLAY_DIR, PlayError, PlayModel, Style
+from jaxstyle.train.defaults import LEARN_EPOCHS
 
 LEARN_2018_ONLY = ("learning a style live is the 2018 few-shot sweep (Mason et al. 2018): choose the 2018 PFNN "
                    "under Model to learn one; a 2022 model learns new styles with `jaxstyle lpn --clip FILE`")
@@ -32,7 +33,7 @@ class Learning:
     clip the page names may lie in besides the run folder (``data_dirs``) and the cap on an
     upload's size (``max_upload_bytes``)."""
 
-    epochs: int = learn.LEARN_EPOCHS
+    epochs: int = LEARN_EPOCHS
     rates: tuple[float, ...] | None = None
     data_dirs: tuple[str | Path, ...] = ()
     max_upload_bytes: int = MAX_UPLOAD_BYTES

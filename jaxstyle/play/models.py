@@ -39,6 +39,7 @@ from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2018 import base_model, sweep_files
+from jaxstyle.mason2022 import pipeline as pipeline2022
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.nn import pfnn
 from jaxstyle.output.check import FAILED_MARK, failed_check
@@ -262,9 +263,9 @@ def available_models(run_dir: str | Path) -> dict[str, str]:
     folder = run_dir / LPN_DIR
     if (folder / "config.json").is_file() and (folder / "data.json").is_file():
         try:
-            name = json.loads((folder / "data.json").read_text()).get("name", synthesis2022.pipeline.MODEL)
+            name = json.loads((folder / "data.json").read_text()).get("name", pipeline2022.MODEL)
         except (OSError, ValueError):
-            name = synthesis2022.pipeline.MODEL
+            name = pipeline2022.MODEL
         key = synthesis2022.model_key(name) if name in synthesis2022.MODELS.values() else name
         out[key] = f"2022 {name} (Mason et al. 2022)"
     return out
