@@ -41,6 +41,7 @@ import numpy as np
 import jaxstyle as js
 from jaxstyle.data import clips, folders
 from jaxstyle.mason2022 import finetune, pipeline, report
+from jaxstyle.train import defaults
 
 ORDER = ("PFNN One-hot", "LPN One-hot", "PFNN Resad", "LPN Resad", "LPN FiLM", "PFNN FiLM", "MANN FiLM")
 """The default order: the cheap one-hot and adapter models first (time they leave unused goes to the
@@ -62,7 +63,7 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=60.0, help="wall-clock budget of the whole run")
     parser.add_argument("--max-epochs", type=int, default=90, help="at most this many epochs per model (paper: 90)")
     parser.add_argument("--finetune-steps", type=int, default=150, help="at most this many steps per (style, rate)")
-    parser.add_argument("--rates", type=float, nargs="+", default=list(finetune.FINETUNE_RATES))
+    parser.add_argument("--rates", type=float, nargs="+", default=list(defaults.FILM_DEFAULT_RATES))
     parser.add_argument("--max-seconds", type=float, help="use only the first seconds of each clip (quick checks)")
     parser.add_argument("--data", type=Path, help="a style folder (default: the shared 100STYLE sample)")
     parser.add_argument("--hidden", type=int, default=512, help="hidden units (paper: 512; smaller: quick checks)")

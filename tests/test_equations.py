@@ -102,7 +102,6 @@ def check_layer_norm(ln_fn):
 
 def test_catmull_rom_weights_match_eq_1a_1c():
     check_weights(pfnn.catmull_rom_weights)
-    assert pfnn.spline_weights is pfnn.catmull_rom_weights  # the former name stays
 
 
 def test_catmull_rom_weights_sum_to_one_and_interpolate_the_knots():

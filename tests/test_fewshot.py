@@ -90,7 +90,7 @@ def test_adapter_dropout_only_mode_matches_its_definition():
     key = jax.random.PRNGKey(3)
     cached = fewshot._cached_loss(params, adapter, cache, y, idx, key, 0.5, 0.0)
     # the definition: frozen layers without dropout, the adapter's input dropped with `key`
-    w = pfnn.spline_weights(phase[idx])
+    w = pfnn.catmull_rom_weights(phase[idx])
     h1 = jax.nn.elu(pfnn.pf_dense(params["l0"], x[idx], w))
     pre = pfnn.pf_dense(params["l1"], h1, w) + pfnn.apply_adapter(adapter, pfnn.dropout(key, h1, 0.5), w)
     want = jnp.mean((pfnn.pf_dense(params["l2"], jax.nn.elu(pre), w) - y[idx]) ** 2)
@@ -145,7 +145,7 @@ def test_bfloat16_matmuls_round_only_the_frozen_products():
     layer = {"W": jnp.asarray(rng.normal(size=(4, 6, 5)), jnp.float32), "b": jnp.asarray(rng.normal(size=(4, 5)),
                                                                                          jnp.float32)}
     h = jnp.asarray(rng.normal(size=(7, 6)), jnp.float32)
-    w = pfnn.spline_weights(jnp.asarray(rng.uniform(size=7), jnp.float32))
+    w = pfnn.catmull_rom_weights(jnp.asarray(rng.uniform(size=7), jnp.float32))
     low = pfnn.cast_weights({"l": layer}, jnp.bfloat16)["l"]
     assert low["W"].dtype == jnp.bfloat16 and low["b"].dtype == jnp.float32
     got = pfnn.pf_dense(low, h, w)
@@ -218,7 +218,7 @@ def test_frozen_layer_layout_equals_pf_dense_and_its_input_gradient(dtype):
     layer = {"W": jnp.asarray(rng.normal(size=(4, 6, 5)), jnp.float32),
              "b": jnp.asarray(rng.normal(size=(4, 5)), jnp.float32)}
     h = jnp.asarray(rng.normal(size=(9, 6)), jnp.float32)
-    w = pfnn.spline_weights(jnp.asarray(rng.uniform(size=9), jnp.float32))
+    w = pfnn.catmull_rom_weights(jnp.asarray(rng.uniform(size=9), jnp.float32))
     g = jnp.asarray(rng.normal(size=(9, 5)), jnp.float32)
     frozen = pfnn.freeze_weights({"l": layer}, dtype)["l"]
     assert frozen["W"].shape == (6, 20) and frozen["W"].dtype == dtype

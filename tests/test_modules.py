@@ -64,12 +64,12 @@ def film_data():
 
 @pytest.fixture(scope="module")
 def pfnn_model():
-    return modules.PFNN(PFNN_CONFIG, num_styles=NUM_STYLES, rngs=nnx.Rngs(0))
+    return modules.PFNNModule(PFNN_CONFIG, num_styles=NUM_STYLES, rngs=nnx.Rngs(0))
 
 
 @pytest.fixture(scope="module")
 def film_model():
-    return modules.LPNFiLM(FILM_CONFIG, rngs=nnx.Rngs(0))
+    return modules.LPNFiLMModule(FILM_CONFIG, rngs=nnx.Rngs(0))
 
 
 # --- PFNN ---------------------------------------------------------------------------------------
@@ -80,7 +80,7 @@ def test_pfnn_initialises_as_the_pure_functions(pfnn_model):
     _equal_trees(m.params(), pfnn.init_pfnn(kp, PFNN_CONFIG))  # as jaxstyle.mason2018.train.init_state
     _equal_trees(m.adapters(), jax.vmap(lambda k: pfnn.init_adapter(k, PFNN_CONFIG))(jax.random.split(ka, NUM_STYLES)))
     assert m.num_styles == NUM_STYLES
-    assert modules.PFNN(PFNN_CONFIG, rngs=nnx.Rngs(0)).adapters() is None
+    assert modules.PFNNModule(PFNN_CONFIG, rngs=nnx.Rngs(0)).adapters() is None
     assert len(jax.tree.leaves(nnx.state(m, nnx.Param))) == len(jax.tree.leaves((m.params(), m.adapters())))
 
 
@@ -162,7 +162,7 @@ def _adam_step(params, grads):
 
 def test_pfnn_nnx_optimizer_step_equals_the_optax_step(pfnn_grads, pfnn_model):
     before = (pfnn_model.params(), pfnn_model.adapters())
-    m = modules.PFNN.from_params(PFNN_CONFIG, *before)  # a copy: the shared fixture stays as it is
+    m = modules.PFNNModule.from_params(PFNN_CONFIG, *before)  # a copy: the shared fixture stays as it is
     optimizer = nnx.Optimizer(m, optax.adam(1e-2), wrt=nnx.Param)
     (_, grads), (_, pure_grads) = pfnn_grads[0.3]
     optimizer.update(m, grads)
@@ -177,20 +177,20 @@ def test_pfnn_nnx_optimizer_step_equals_the_optax_step(pfnn_grads, pfnn_model):
 def test_pfnn_round_trip_is_exact(pfnn_data, pfnn_model):
     x, phase, _ = pfnn_data
     m = pfnn_model
-    m2 = modules.PFNN.from_params(PFNN_CONFIG, m.params(), m.adapters())
+    m2 = modules.PFNNModule.from_params(PFNN_CONFIG, m.params(), m.adapters())
     _equal_trees(m2.params(), m.params())
     _equal_trees(m2.adapters(), m.adapters())
     np.testing.assert_array_equal(m2(x, phase, style=0), m(x, phase, style=0))
     # pure weights in: a base cast to bfloat16 keeps its dtype, numpy arrays become jax arrays
     base = pfnn.cast_weights(m.params(), jnp.bfloat16)
-    _equal_trees(modules.PFNN.from_params(PFNN_CONFIG, base).params(), base)
+    _equal_trees(modules.PFNNModule.from_params(PFNN_CONFIG, base).params(), base)
     as_numpy = jax.tree.map(np.asarray, m.params())
-    _equal_trees(modules.PFNN.from_params(PFNN_CONFIG, as_numpy).params(), m.params())
+    _equal_trees(modules.PFNNModule.from_params(PFNN_CONFIG, as_numpy).params(), m.params())
 
 
 def test_pfnn_module_errors(pfnn_data, pfnn_model):
     x, phase, _ = pfnn_data
-    m = modules.PFNN.from_params(PFNN_CONFIG, pfnn_model.params())
+    m = modules.PFNNModule.from_params(PFNN_CONFIG, pfnn_model.params())
     with pytest.raises(ValueError, match="key= or rngs="):
         m(x, phase, dropout_rate=0.3)
     with pytest.raises(ValueError, match="holds no adapters"):
@@ -198,13 +198,13 @@ def test_pfnn_module_errors(pfnn_data, pfnn_model):
     with pytest.raises(ValueError, match="not both"):
         m(x, phase, style=0, adapter=pfnn_model.adapter(0))
     with pytest.raises(ValueError, match="rngs"):
-        modules.PFNN(PFNN_CONFIG)
+        modules.PFNNModule(PFNN_CONFIG)
     wrong = dict(m.params(), l0={"W": jnp.zeros((4, 7, 8)), "b": jnp.zeros((4, 8))})  # input_size 7, not 8
     with pytest.raises(ValueError, match=r"'l0'\]\['W'\]"):
-        modules.PFNN.from_params(PFNN_CONFIG, wrong)
+        modules.PFNNModule.from_params(PFNN_CONFIG, wrong)
     one = pfnn_model.adapter(0)  # not stacked
     with pytest.raises(ValueError, match="stacked"):
-        modules.PFNN.from_params(PFNN_CONFIG, m.params(), one)
+        modules.PFNNModule.from_params(PFNN_CONFIG, m.params(), one)
 
 
 # --- LPN FiLM -----------------------------------------------------------------------------------
@@ -272,7 +272,7 @@ def test_lpn_film_module_gradients_equal_the_pure_gradients(film_grads, film_mod
 def test_lpn_film_nnx_optimizer_step_and_round_trip(film_data, film_grads, film_model):
     x, gate, clip, _ = film_data
     before = film_model.params()
-    m = modules.LPNFiLM.from_params(FILM_CONFIG, before)  # a copy: the shared fixture stays as it is
+    m = modules.LPNFiLMModule.from_params(FILM_CONFIG, before)  # a copy: the shared fixture stays as it is
     optimizer = nnx.Optimizer(m, optax.adam(1e-2), wrt=nnx.Param)
     (_, grads), (_, pure_grads) = film_grads[0.3]
     optimizer.update(m, grads)
@@ -280,7 +280,7 @@ def test_lpn_film_nnx_optimizer_step_and_round_trip(film_data, film_grads, film_
     assert not np.allclose(after["synthesis"]["l0"]["W"], before["synthesis"]["l0"]["W"])
     assert not np.allclose(after["style"]["generator"]["dense2"]["W"], before["style"]["generator"]["dense2"]["W"])
     _close_trees(after, _adam_step(before, pure_grads))
-    m2 = modules.LPNFiLM.from_params(FILM_CONFIG, after)
+    m2 = modules.LPNFiLMModule.from_params(FILM_CONFIG, after)
     _equal_trees(m2.params(), after)
     np.testing.assert_array_equal(m2(x, gate, clip=clip), m(x, gate, clip=clip))
 
@@ -294,12 +294,12 @@ def test_lpn_film_module_errors(film_data, film_model):
         m(x, gate, clip=clip, dropout_rate=0.1)
     onehot = style_models.StyleModelConfig("lpn", "onehot", num_styles=2)
     with pytest.raises(ValueError, match="modulation must be 'film'"):
-        modules.LPNFiLM(onehot, rngs=nnx.Rngs(0))
+        modules.LPNFiLMModule(onehot, rngs=nnx.Rngs(0))
     wrong = dict(m.params(), gating=m.params()["gating"][:2])
     with pytest.raises(ValueError, match="do not match the config"):
-        modules.LPNFiLM.from_params(FILM_CONFIG, wrong)
+        modules.LPNFiLMModule.from_params(FILM_CONFIG, wrong)
 
 
 def test_public_names_are_the_modules():
-    assert jaxstyle.PFNNModule is modules.PFNN
-    assert jaxstyle.LPNFiLMModule is modules.LPNFiLM
+    assert jaxstyle.PFNNModule is modules.PFNNModule
+    assert jaxstyle.LPNFiLMModule is modules.LPNFiLMModule

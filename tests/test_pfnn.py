@@ -30,15 +30,15 @@ def test_spline_matches_the_reference_cubic_in_all_segments():
     rng = np.random.default_rng(0)
     points = rng.normal(size=(4, 7))
     phase = np.concatenate([rng.uniform(s / 4, (s + 1) / 4, 50) for s in range(4)])
-    got = pfnn.blend(jnp.asarray(points, jnp.float32), pfnn.spline_weights(phase))
+    got = pfnn.blend(jnp.asarray(points, jnp.float32), pfnn.catmull_rom_weights(phase))
     np.testing.assert_allclose(got, _reference_cubic(points, phase), rtol=1e-5, atol=1e-5)
-    np.testing.assert_allclose(pfnn.spline_weights(np.arange(4) / 4), np.eye(4), atol=1e-7)  # interpolates
+    np.testing.assert_allclose(pfnn.catmull_rom_weights(np.arange(4) / 4), np.eye(4), atol=1e-7)  # interpolates
 
 
 def test_spline_is_periodic_and_c1_at_control_points():
     rng = np.random.default_rng(1)
     points = jnp.asarray(rng.normal(size=(4, 3)))
-    f = lambda p: pfnn.blend(points, pfnn.spline_weights(jnp.asarray(p, jnp.float32)))  # noqa: E731
+    f = lambda p: pfnn.blend(points, pfnn.catmull_rom_weights(jnp.asarray(p, jnp.float32)))  # noqa: E731
     phases = np.linspace(0, 1, 37, endpoint=False)
     np.testing.assert_allclose(f(phases), f(phases + 1.0), atol=1e-5)
     h = 1e-3
@@ -51,7 +51,7 @@ def test_spline_is_periodic_and_c1_at_control_points():
 
 def _explicit_forward(params, adapter, x, phase):
     """Weight-blended forward: a weight matrix per sample (what the library never does)."""
-    w = np.asarray(pfnn.spline_weights(phase))
+    w = np.asarray(pfnn.catmull_rom_weights(phase))
     out = []
     for i in range(len(x)):
         W = {k: {n: np.tensordot(w[i], np.asarray(v), axes=1) for n, v in layer.items()} for k, layer in params.items()}
@@ -204,7 +204,7 @@ def test_pf_dense_gives_the_same_result_whether_its_weights_are_traced_or_consta
     layer = {"W": jax.random.normal(k0, (4, 7, 5)), "b": jax.random.normal(k1, (4, 5))}
     for batch in (1, pfnn.SMALL_BATCH, pfnn.SMALL_BATCH + 1):
         h = jax.random.normal(k2, (batch, 7))
-        w = pfnn.spline_weights(jnp.linspace(0.0, 0.95, batch))
+        w = pfnn.catmull_rom_weights(jnp.linspace(0.0, 0.95, batch))
         want = np.einsum("bk,bko->bo", np.asarray(w, np.float64),
                          np.einsum("bi,kio->bko", np.asarray(h, np.float64), np.asarray(layer["W"], np.float64))
                          + np.asarray(layer["b"], np.float64))

@@ -100,7 +100,7 @@ def test_cp_adapter_blend_equals_the_blend_of_residuals():
     adapters = jax.vmap(lambda k: pfnn.init_adapter(k, config))(keys)
     adapters["b"] = jax.random.normal(jax.random.PRNGKey(5), adapters["b"].shape)
     h = jax.random.normal(jax.random.PRNGKey(1), (7, 8))
-    w4 = pfnn.spline_weights(jnp.linspace(0, 0.9, 7))
+    w4 = pfnn.catmull_rom_weights(jnp.linspace(0, 0.9, 7))
     weights = np.array([0.2, 0.5, 0.3])
     want = sum(weights[k] * np.asarray(pfnn.apply_adapter(jax.tree.map(lambda v, k=k: v[k], adapters), h, w4),
                                        np.float64) for k in range(3))

@@ -77,7 +77,7 @@ def frozen_activations(params: dict, x, phase) -> dict:
     """Per-frame quantities of the frozen base that no adapter-path dropout mask changes: the
     spline weights ``w (N, 4)``, ``h1 (N, H)`` and the middle layer's main-path pre-activation
     ``pre (N, H)``."""
-    w = pfnn.spline_weights(phase)
+    w = pfnn.catmull_rom_weights(phase)
     h1 = jax.nn.elu(pfnn.pf_dense(params["l0"], x, w))
     return {"w": w, "h1": h1, "pre": pfnn.pf_dense(params["l1"], h1, w)}
 

@@ -36,7 +36,6 @@ from jaxstyle.train import scan
 from jaxstyle.train.checkpoint import json_text
 from jaxstyle.train.defaults import FILM_DEFAULT_RATES, ROLLOUT_FIELDS, RolloutCheck
 
-FINETUNE_RATES = FILM_DEFAULT_RATES
 """Dropout rates of the FiLM fine-tuning sweep."""
 
 
@@ -157,7 +156,7 @@ class FinetuneResult:
 SPLITS = ("validation", "test")
 
 
-def generator_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FINETUNE_RATES, steps: int = 150,
+def generator_sweep(model: Model, data: LPNData, *, rates: Sequence[float] = FILM_DEFAULT_RATES, steps: int = 150,
                    epochs: int = 100, chunk_steps: int = 10, progress: bool = True) -> FinetuneResult:
     """Fine-tune ``model``'s FiLM generator on every new style of ``data`` at every dropout rate,
     at most ``steps`` steps each (over at most ``epochs`` epochs), in one compiled sweep
@@ -292,7 +291,7 @@ class FinetunedClips(NamedTuple):
 
 
 def finetune_clips(model: Model, data: LPNData, directory: str | os.PathLike, *,
-                   rates: Sequence[float] = FINETUNE_RATES, steps: int = 150, epochs: int = 100,
+                   rates: Sequence[float] = FILM_DEFAULT_RATES, steps: int = 150, epochs: int = 100,
                    check: RolloutCheck | None = None, progress: bool = True
                    ) -> FinetunedClips:
     """New styles from the user's clips (``data.new``, :func:`user_clip_data`) the 2022 way: the

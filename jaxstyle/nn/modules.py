@@ -6,10 +6,10 @@ those same pytrees with every array in an :class:`flax.nnx.Param`, and their ``_
 the pytree and calls the pure function: no maths is written twice, so a module and its pure
 function give the same outputs and the same gradients (``tests/test_modules.py`` checks both).
 
-* :class:`PFNN` (exported as ``jaxstyle.PFNNModule``): the 2018 PFNN
+* :class:`PFNNModule` (also ``jaxstyle.PFNNModule``): the 2018 PFNN
   (:func:`jaxstyle.nn.pfnn.pfnn_apply`) with an optional table of per-style residual adapters
   (stacked on a leading style axis, as :func:`jaxstyle.mason2018.train.init_state` keeps them).
-* :class:`LPNFiLM` (exported as ``jaxstyle.LPNFiLMModule``): a 2022 FiLM style model (default
+* :class:`LPNFiLMModule` (also ``jaxstyle.LPNFiLMModule``): a 2022 FiLM style model (default
   LPN FiLM, :func:`jaxstyle.nn.style_models.model_apply`) with its FiLM generator
   (:func:`jaxstyle.nn.film_generator.generator_apply`), driven by a style clip or a precomputed
   FiLM vector.
@@ -34,7 +34,7 @@ from flax import nnx
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import pfnn, style_models
 
-__all__ = ["LPNFiLM", "LPNFiLMModule", "PFNN", "PFNNModule"]
+__all__ = ["LPNFiLMModule", "PFNNModule"]
 
 _IS_VARIABLE = lambda v: isinstance(v, nnx.Variable)  # noqa: E731
 _NO_TREE = object()  # the sentinel of __init__'s private ``_tree``: initialise from rngs
@@ -87,7 +87,7 @@ def _init_pfnn(key: jax.Array, config: pfnn.PFNNConfig, num_styles: int) -> tupl
     return pfnn.init_pfnn(kp, config), adapters
 
 
-class PFNN(nnx.Module):
+class PFNNModule(nnx.Module):
     """The 2018 phase-functioned network with an optional table of per-style residual adapters.
 
     A façade over :func:`jaxstyle.nn.pfnn.pfnn_apply` (the source of truth): the base
@@ -96,7 +96,7 @@ class PFNN(nnx.Module):
     :class:`flax.nnx.Param` leaves so that :func:`flax.nnx.grad`, :class:`flax.nnx.Optimizer` and
     other Flax modules can use them; calling the module calls the pure function on them.
 
-    ``PFNN(config, num_styles=S, rngs=nnx.Rngs(0))`` initialises as
+    ``PFNNModule(config, num_styles=S, rngs=nnx.Rngs(0))`` initialises as
     :func:`jaxstyle.mason2018.train.init_state` does from the key ``rngs.params()`` (split into the
     base's and the adapters' keys); ``num_styles=0`` holds no adapters. ``config=None`` is the
     paper's :class:`jaxstyle.nn.pfnn.PFNNConfig`.
@@ -107,7 +107,7 @@ class PFNN(nnx.Module):
         config = pfnn.PFNNConfig() if config is None else config
         if _tree is _NO_TREE:
             if rngs is None:
-                raise ValueError("PFNN needs rngs=nnx.Rngs(seed) to initialise (or use PFNN.from_params)")
+                raise ValueError("PFNNModule needs rngs=nnx.Rngs(seed) to initialise (or use PFNNModule.from_params)")
             if num_styles < 0:
                 raise ValueError(f"num_styles must be 0 or more, got {num_styles}")
             params, adapters = _init_pfnn(rngs.params(), config, num_styles)
@@ -119,7 +119,7 @@ class PFNN(nnx.Module):
         self.adapter_table = _wrap(adapters)
 
     @classmethod
-    def from_params(cls, config: pfnn.PFNNConfig, params: dict, adapters: dict | None = None) -> "PFNN":
+    def from_params(cls, config: pfnn.PFNNConfig, params: dict, adapters: dict | None = None) -> "PFNNModule":
         """The module holding the pure base ``params`` (:func:`jaxstyle.nn.pfnn.init_pfnn`'s
         structure) and optionally ``adapters`` stacked on a leading style axis (as in
         :func:`jaxstyle.mason2018.train.init_state`; stack one adapter ``a`` with
@@ -164,7 +164,7 @@ class PFNN(nnx.Module):
                                adapter_dropout_rate=adapter_dropout_rate)
 
 
-class LPNFiLM(nnx.Module):
+class LPNFiLMModule(nnx.Module):
     """A 2022 style model with FiLM modulation (default: LPN FiLM) and its FiLM generator.
 
     A façade over :func:`jaxstyle.nn.style_models.model_apply` and
@@ -174,7 +174,7 @@ class LPNFiLM(nnx.Module):
 
     ``config`` is a :class:`jaxstyle.nn.style_models.StyleModelConfig` with ``modulation="film"``
     (the ``"pfnn"`` and ``"mann"`` backbones work too: Table 2's PFNN FiLM and MANN FiLM).
-    ``LPNFiLM(config, rngs=nnx.Rngs(0))`` initialises as :func:`jaxstyle.mason2022.train.init_state`
+    ``LPNFiLMModule(config, rngs=nnx.Rngs(0))`` initialises as :func:`jaxstyle.mason2022.train.init_state`
     does, from the key ``rngs.params()``. ``config=None`` is the paper's LPN FiLM.
     """
 
@@ -182,21 +182,24 @@ class LPNFiLM(nnx.Module):
                  rngs: nnx.Rngs | None = None, _tree=_NO_TREE):
         config = style_models.StyleModelConfig() if config is None else config
         if config.modulation != "film":
-            raise ValueError(f"LPNFiLM is a FiLM model: config.modulation must be 'film', got {config.modulation!r}")
+            raise ValueError("LPNFiLMModule is a FiLM model: config.modulation must be 'film', got "
+                             f"{config.modulation!r}")
         if _tree is _NO_TREE:
             if rngs is None:
-                raise ValueError("LPNFiLM needs rngs=nnx.Rngs(seed) to initialise (or use LPNFiLM.from_params)")
+                raise ValueError("LPNFiLMModule needs rngs=nnx.Rngs(seed) to initialise "
+                                 "(or use LPNFiLMModule.from_params)")
             _tree = style_models.init_model(rngs.params(), config)
         self.config = config
         self.weights = _wrap(_tree)
 
     @classmethod
-    def from_params(cls, config: style_models.StyleModelConfig, params: dict) -> "LPNFiLM":
+    def from_params(cls, config: style_models.StyleModelConfig, params: dict) -> "LPNFiLMModule":
         """The module holding the pure ``params`` of :func:`jaxstyle.nn.style_models.init_model`
         (e.g. ``state.params`` of :func:`jaxstyle.mason2022.train.init_state`); shapes are
         checked against ``config``."""
         if config.modulation != "film":
-            raise ValueError(f"LPNFiLM is a FiLM model: config.modulation must be 'film', got {config.modulation!r}")
+            raise ValueError("LPNFiLMModule is a FiLM model: config.modulation must be 'film', got "
+                             f"{config.modulation!r}")
         key = jax.random.PRNGKey(0)
         _check_like("LPNFiLM params", params, jax.eval_shape(lambda: style_models.init_model(key, config)))
         return cls(config, _tree=params)
@@ -236,5 +239,3 @@ class LPNFiLM(nnx.Module):
                                         dropout_rate=dropout_rate)
 
 
-PFNNModule = PFNN
-LPNFiLMModule = LPNFiLM

@@ -3,7 +3,7 @@
 Pure functions over parameter pytrees (dicts of arrays). The paper's equations are separate
 functions (docs/equations.md maps every equation to its function):
 
-* :func:`catmull_rom_weights` (alias :func:`spline_weights`): the cubic Catmull-Rom phase
+* :func:`catmull_rom_weights`: the cubic Catmull-Rom phase
   function (Mason et al. 2018, Eq. 1a-1c) as 4 weights, one per control point, for any batch of
   phases. Every phase-functioned quantity is linear in its control points, so layers are evaluated
   for the 4 control points and their OUTPUTS blended with these weights (:func:`pf_dense`); no
@@ -82,9 +82,6 @@ def catmull_rom_weights(phase_B: jax.Array) -> jax.Array:
     idx = (k.astype(jnp.int32)[..., None] + jnp.arange(-1, 3)) % NUM_CONTROL_POINTS
     return jnp.sum(jax.nn.one_hot(idx, NUM_CONTROL_POINTS, dtype=coef.dtype) * coef[..., None], axis=-2)
 
-
-spline_weights = catmull_rom_weights
-"""The former name of :func:`catmull_rom_weights` (Mason et al. 2018, Eq. 1a-1c), kept as an alias."""
 
 
 def blend(values_4x: jax.Array, weights_Bx4: jax.Array) -> jax.Array:
