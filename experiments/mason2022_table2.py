@@ -114,18 +114,11 @@ def train(args) -> None:
              f"units; {args.epochs} epochs each at Adam {args.learning_rate:g} (data ready after "
              f"{time.perf_counter() - t0:.0f} s)", ""]
     print(lines[0], flush=True)
-    done = pipeline.ModelRuns({}, {}, {})
-    for name in args.models:
-        config = pipeline.model_config(data.base, name, hidden=args.hidden, generator_hidden=args.generator_hidden,
-                                       filters=args.filters)
-        folder = pipeline.model_folder(args.out, name)
-        model = pipeline.train_model(data, config, folder, name=name, epochs=args.epochs,
-                                     progress=not args.no_progress, learning_rate=args.learning_rate)
-        done.logs[name] = pipeline.read_log(folder)
-        done.runs[name] = pipeline.BudgetRun(model, len(done.logs[name]["epoch"]),
-                                            float(done.logs[name]["seconds"].sum()), "max epochs")
-        done.results[name] = pipeline.model_losses(model)
-        print(report.model_line(name, done), flush=True)
+    configs = {name: pipeline.model_config(data.base, name, hidden=args.hidden, generator_hidden=args.generator_hidden,
+                                           filters=args.filters) for name in args.models}
+    done = pipeline.train_models(data, configs, args.out, pipeline.SharedBudget.epochs(args.epochs),
+                                 train_config={"learning_rate": args.learning_rate}, progress=not args.no_progress,
+                                 after_each=lambda name, runs: print(report.model_line(name, runs), flush=True))
     lines += report.budget_table(done.runs, done.logs)
     lines += ["", "Test rows, dropout off: mean over styles, then per style MSE / BLL:", ""]
     lines += report.models_table(data.base.styles, done.results) + ["", *report.ordering_lines(done.results)]

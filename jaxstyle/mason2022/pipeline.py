@@ -146,11 +146,12 @@ class Budget:
     to last as long as the last one) still fits in ``seconds``, at least one, at most
     ``max_epochs`` (the paper: 90), and stop early once validation has flattened: the best
     validation loss (MSE + bone-length loss) of the last ``flat_epochs`` epochs is less than
-    ``flat_tolerance`` (relative) below the best of the epochs before them."""
+    ``flat_tolerance`` (relative) below the best of the epochs before them (``flat_epochs=None``:
+    no early stop)."""
 
     seconds: float
     max_epochs: int = 90
-    flat_epochs: int = 3
+    flat_epochs: int | None = 3
     flat_tolerance: float = 0.01
 
 
@@ -214,7 +215,8 @@ def train_for(data: LPNData, config: StyleModelConfig, directory: str | os.PathL
         if epochs >= budget.max_epochs:
             stopped = "max epochs"
             break
-        if log and flattened(log["val_mse"] + log["val_bll"], budget.flat_epochs, budget.flat_tolerance):
+        if budget.flat_epochs is not None and log and flattened(log["val_mse"] + log["val_bll"], budget.flat_epochs,
+                                                                 budget.flat_tolerance):
             stopped = "flattened"
             break
         if time.perf_counter() - t0 + last_epoch_s > budget.seconds:
@@ -250,11 +252,19 @@ def model_folder(out: str | os.PathLike, name: str) -> Path:
 class SharedBudget:
     """One wall-clock budget for several jobs (:func:`train_models`): it ends at ``deadline``
     (``time.perf_counter()`` seconds); ``jobs_after`` later jobs (e.g. a fine-tuning sweep) get
-    their shares of it; each model trains at most ``max_epochs`` epochs (the paper: 90)."""
+    their shares of it; each model trains at most ``max_epochs`` epochs (the paper: 90), stopping
+    early once its validation loss has flattened unless ``early_stop`` is off."""
 
     deadline: float
     jobs_after: int = 0
     max_epochs: int = 90
+    early_stop: bool = True
+
+    @classmethod
+    def epochs(cls, epochs: int) -> "SharedBudget":
+        """No wall clock: every model trains exactly ``epochs`` epochs (Table 2's comparison at equal
+        epochs; a time budget would favour the cheaper models and depend on the machine's load)."""
+        return cls(float("inf"), 0, int(epochs), early_stop=False)
 
 
 def train_models(data: LPNData, configs: Mapping[str, StyleModelConfig], out: str | os.PathLike,
@@ -276,7 +286,8 @@ def train_models(data: LPNData, configs: Mapping[str, StyleModelConfig], out: st
     for i, (name, config) in enumerate(configs.items()):
         share = max(0.0, (budget.deadline - time.perf_counter()) / (jobs - i))
         folder = model_folder(out, name)
-        runs[name] = train_for(data, config, folder, Budget(share, max_epochs=budget.max_epochs), name=name,
+        stop = {} if budget.early_stop else {"flat_epochs": None}
+        runs[name] = train_for(data, config, folder, Budget(share, max_epochs=budget.max_epochs, **stop), name=name,
                                progress=progress, train_config=train_config)
         logs[name] = read_log(folder)
         results[name] = model_losses(runs[name].model)
