@@ -132,7 +132,8 @@ def screenshot(run: Path, path: Path) -> None:
     """The page on ``run`` with a Crouched and a Proud_FW character walking to two waypoints."""
     from playwright.sync_api import sync_playwright
 
-    from jaxstyle.play.server import PlayServer, Serving
+    from jaxstyle.play.guard import Serving
+    from jaxstyle.play.server import PlayServer
 
     args = ["--no-sandbox", "--use-gl=swiftshader", "--enable-unsafe-swiftshader", "--disable-background-networking",
             "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic"]
@@ -181,8 +182,9 @@ def learn_once(run: Path, epochs: int) -> None:
     import types
 
     from jaxstyle.cli.common import use_xla_cache
+    from jaxstyle.play.guard import Serving
     from jaxstyle.play.learn_panel import Learning
-    from jaxstyle.play.server import PlayServer, Serving
+    from jaxstyle.play.server import PlayServer
 
     use_xla_cache()
     with tempfile.TemporaryDirectory() as tmp:
@@ -271,7 +273,8 @@ def main() -> None:
     if args.screenshot:
         screenshot(args.run or Path("runs/demo"), args.screenshot)
         return
-    from jaxstyle.play.server import PlayServer, Serving
+    from jaxstyle.play.guard import Serving
+    from jaxstyle.play.server import PlayServer
 
     with tempfile.TemporaryDirectory() as tmp:
         if args.model == "lpn-film":

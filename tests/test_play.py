@@ -608,7 +608,8 @@ def test_play_a_trained_2022_model_from_its_run_folder(trained_lpn_run, model, t
     the 2022 model's styles in the dropdown; learning refused in one line while it plays; a target
     ahead approached (a one-epoch model walks forward whatever it is told, so only a target ahead
     is a fair check of its motion)."""
-    from jaxstyle.play.server import PlayServer, Serving
+    from jaxstyle.play.guard import Serving
+    from jaxstyle.play.server import PlayServer
 
     run = trained_lpn_run[0]
     assert models.available_models(run) == {"lpn-film": "2022 LPN FiLM (Mason et al. 2022)"}

@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from jaxstyle.play.guard import Serving
 from jaxstyle.play.learn_panel import Learning
-from jaxstyle.play.server import PlayServer, Serving
+from jaxstyle.play.server import PlayServer
 from tests.test_play import other_skeleton_bvh, tiny_model
 
 CHROMIUM = Path(os.environ.get("JAXSTYLE_CHROMIUM", "/usr/bin/chromium"))

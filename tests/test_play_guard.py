@@ -16,9 +16,10 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
 from jaxstyle.play import guard
+from jaxstyle.play.guard import Serving
 from jaxstyle.play.learn_panel import Learning
 from jaxstyle.play.models import PlayError
-from jaxstyle.play.server import PlayServer, Serving
+from jaxstyle.play.server import PlayServer
 from tests.test_play import other_skeleton_bvh, tiny_model
 from tests.test_play_browser import wait_for
 

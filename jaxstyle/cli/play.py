@@ -82,9 +82,10 @@ def _run_demo(run: Run, args) -> None:
 
 
 def run(args, run: Run) -> None:
+    from jaxstyle.play.guard import Serving
     from jaxstyle.play.learn_panel import Learning
     from jaxstyle.play.models import PlayError, available_models
-    from jaxstyle.play.server import PlayServer, Serving
+    from jaxstyle.play.server import PlayServer
 
     check_positive(args, "learn_epochs", "record_seconds", "max_upload_mb")
     if args.token is not None and not re.fullmatch(r"[A-Za-z0-9_-]{8,128}", args.token):

@@ -15,6 +15,8 @@ file system through the "BVH path" field, switch the run folder and learn into i
 * **Paths** (:func:`confine`): a file or folder named in the page is resolved (``..`` and
   symbolic links followed) and must lie under one of the allowed roots; the check runs before
   anything looks at the file, and the refusal is the same whether or not the path exists.
+* **Where** (:class:`Serving`, :func:`check_address`): the host and port served, the token, and
+  a host that is not an address of this machine refused at once.
 * **Messages** (:func:`without_content`): errors about a file the page named are shown with
   any quoted excerpt of the file removed, so a refusal never reads a file out to the page.
 
@@ -170,3 +172,33 @@ def without_content(message: str) -> str:
     """``message`` with every quoted excerpt replaced by ``'…'`` (what a file holds is not shown
     to the page)."""
     return _QUOTED.sub("'…'", message)
+
+
+@dataclasses.dataclass(frozen=True)
+class Serving:
+    """Where the page is served: ``host`` and ``port`` (0: a free port, read back as
+    :attr:`jaxstyle.play.server.PlayServer.port` once started), the ``token`` a browser must present (``None``: none;
+    :mod:`jaxstyle.play.guard`) and ``verbose`` (viser's own log)."""
+
+    host: str = "127.0.0.1"
+    port: int = 8080
+    token: str | None = None
+    verbose: bool = False
+
+
+def check_address(host: str) -> None:
+    """A PlayError unless ``host`` is an address of this machine to serve on (viser's server
+    waits forever on a name it cannot look up or bind)."""
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host.strip("[]") or None, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (OSError, UnicodeError) as e:
+        raise PlayError(f"--host {host}: not an address or known host name ({getattr(e, 'strerror', None) or e})") \
+            from None
+    family, kind, proto, _, address = infos[0]
+    try:
+        with socket.socket(family, kind, proto) as probe:
+            probe.bind(address)
+    except OSError as e:
+        raise PlayError(f"--host {host}: not an address of this machine ({e.strerror or e})") from None

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import dataclasses
 import datetime
 import math
 import threading
@@ -49,6 +48,7 @@ import numpy as np
 
 from jaxstyle.errors import JaxstyleError
 from jaxstyle.play import guard, learn
+from jaxstyle.play.guard import Serving
 from jaxstyle.play.learn_panel import Learning, LearnPanel
 from jaxstyle.play.models import (
     PFNN,
@@ -63,23 +63,12 @@ from jaxstyle.play.session import (
     Session,
     save_recording,
 )
+from jaxstyle.play.style_panel import NO_BLEND, STEER_BUTTONS, StylePanel
 
 FPS = 60.0
-NO_BLEND = "(none)"
+
+
 NO_MODEL = "(none)"
-STEER_BUTTONS = {"Left": "A", "Forward": "W", "Back": "S", "Right": "D"}
-
-
-@dataclasses.dataclass(frozen=True)
-class Serving:
-    """Where the page is served: ``host`` and ``port`` (0: a free port, read back as
-    :attr:`PlayServer.port` once started), the ``token`` a browser must present (``None``: none;
-    :mod:`jaxstyle.play.guard`) and ``verbose`` (viser's own log)."""
-
-    host: str = "127.0.0.1"
-    port: int = 8080
-    token: str | None = None
-    verbose: bool = False
 
 
 def _one_line(e: BaseException) -> str:
@@ -87,7 +76,8 @@ def _one_line(e: BaseException) -> str:
     return " ".join(line.strip() for line in str(message).splitlines() if line.strip()) or type(e).__name__
 
 
-class PlayServer(SceneView, LearnPanel):
+
+class PlayServer(SceneView, LearnPanel, StylePanel):
     """The live page on ``host:port`` for the run folder ``run_dir``.
 
     ``start()`` serves the page, loads the run (a failure shows in the page) and starts the render
@@ -146,7 +136,7 @@ class PlayServer(SceneView, LearnPanel):
         ``benchmarks/play.py``)."""
         import viser
 
-        _check_address(self.host)
+        guard.check_address(self.host)
         self._server = viser.ViserServer(host=self.host, port=self.port, verbose=self.verbose)
         self.port = self._server.get_port()
         self.admission = guard.Admission(self.host, self.port, self.token)
@@ -402,57 +392,6 @@ class PlayServer(SceneView, LearnPanel):
             return
         threading.Thread(target=self.load_run, args=(path,), daemon=True).start()
 
-    def session_remove(self) -> None:
-        self.session.remove_character()
-
-    def press(self, key: str, run: bool = False) -> None:
-        """A steering key, as the page's hotkeys send it."""
-        self.session.key(key, self.camera_yaw(), run=run)
-
-    def _on_steer(self, which: str) -> None:
-        if which == "Stop":
-            self.session.stop()
-        else:
-            self.press(STEER_BUTTONS[which])
-
-    def _refresh_style_options(self) -> None:
-        names = list(self.session.styles)
-        g = self._gui
-        g["style"].options = names
-        g["style"].value = self.session.characters[0].style
-        for k, handle in enumerate(g["blend"]):
-            handle.options = [NO_BLEND] + names
-            if handle.value not in handle.options:
-                handle.value = NO_BLEND
-            if handle.value == NO_BLEND and k < 2 and len(names) > k:
-                handle.value = names[k]
-
-    def _on_style(self) -> None:
-        name = self._gui["style"].value
-        first = self.session.characters[0]
-        if name in self.session.styles and (name != first.style or first.blend is not None):
-            self.session.set_style(name, 0)
-
-    def _blend_choice(self):
-        names, weights = [], []
-        for handle, w in zip(self._gui["blend"], self._gui["weights"], strict=True):
-            if handle.value != NO_BLEND and handle.value not in names:
-                names.append(handle.value)
-                weights.append(w.value)
-        return names, weights
-
-    def _on_blend(self) -> None:
-        names, weights = self._blend_choice()
-        self.session.set_blend(names, weights, 0)
-
-    def _on_blend_change(self) -> None:
-        if self.session.characters[0].blend is not None:
-            self._on_blend()  # a blend playing follows its sliders from the next frame on
-
-    def set_style(self, name: str) -> None:
-        """Switch the first character, as the dropdown does (tests and scripts)."""
-        self._gui["style"].value = name
-
     # --- recording ----------------------------------------------------------------------------
     def record(self, seconds: float) -> None:
         """Save the first character's last ``seconds`` as BVH (feet pinned) and GIF, in a thread."""
@@ -472,24 +411,6 @@ class PlayServer(SceneView, LearnPanel):
                 self.show_error(f"recording: {_one_line(e)}")
 
         threading.Thread(target=save, name="jaxstyle-play-record", daemon=True).start()
-
-
-def _check_address(host: str) -> None:
-    """A PlayError unless ``host`` is an address of this machine to serve on (viser's server
-    waits forever on a name it cannot look up or bind)."""
-    import socket
-
-    try:
-        infos = socket.getaddrinfo(host.strip("[]") or None, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
-    except (OSError, UnicodeError) as e:
-        raise PlayError(f"--host {host}: not an address or known host name ({getattr(e, 'strerror', None) or e})") \
-            from None
-    family, kind, proto, _, address = infos[0]
-    try:
-        with socket.socket(family, kind, proto) as probe:
-            probe.bind(address)
-    except OSError as e:
-        raise PlayError(f"--host {host}: not an address of this machine ({e.strerror or e})") from None
 
 
 def _smooth(old: float, new: float, keep: float = 0.9) -> float:
