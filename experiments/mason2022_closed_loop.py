@@ -1,7 +1,7 @@
 """Why the 2022 closed loop freezes, and what each remedy does: the same data, the same model size,
 trained by each recipe, driven with the paper's runtime and with the local phases floored.
 
-    python experiments/mason2022_closed_loop.py [--epochs 4] [--run runs/closed_loop]
+    python experiments/mason2022_closed_loop.py [--epochs 4] [--run runs/closed_loop] [--seeds 0 1 2]
 
 Protocol (fixed):
 
@@ -12,8 +12,11 @@ Protocol (fixed):
    dense units), ``--epochs`` epochs at Adam 1e-3 (the demo's rate), one per recipe
    (:class:`jaxstyle.mason2022.train.LPNTrainConfig`): ``paper`` (the paper's losses),
    ``noise`` (``input_noise`` 1.0 on the normalised inputs) and ``rollout`` (``rollout_steps``
-   4: windows of 5 frames fed the network's own outputs). Trained models are kept in
-   ``--run/<recipe>`` and reused on a re-run.
+   4: windows of 5 frames fed the network's own outputs). ``--seeds``: each recipe is trained
+   once per seed (the initial weights, the batches and the dropout masks,
+   :attr:`jaxstyle.mason2022.train.LPNTrainConfig.seed`; default seed 0 alone), named
+   ``<recipe> seed <n>`` for seeds other than 0. Trained models are kept in ``--run/<name>`` and
+   reused on a re-run.
 3. Runtime: every training style along ``straight`` and ``circle`` (10 s at its own speed, the
    path-following law of the quality benchmark), with the paper's runtime (``--phase-floor 0``)
    and with the default one (local phases floored at
@@ -135,6 +138,7 @@ def main(argv=None) -> None:
     p.add_argument("--run", type=Path, default=Path("runs/closed_loop"))
     p.add_argument("--epochs", type=int, default=4)
     p.add_argument("--recipes", nargs="+", choices=list(RECIPES), default=list(RECIPES))
+    p.add_argument("--seeds", type=int, nargs="+", default=[0], help="train each recipe once per seed")
     p.add_argument("--model", type=Path, action="append", help="measure this trained model's folder instead")
     args = p.parse_args(argv)
     if args.model:
@@ -157,15 +161,19 @@ def main(argv=None) -> None:
     config = pipeline.model_config(data.base, hidden=256, generator_hidden=512, filters=32)
     rows = []
     for recipe in args.recipes:
-        t1 = time.perf_counter()
-        model = pipeline.train_model(data, config, args.run / recipe, epochs=args.epochs, progress=False,
-                                     learning_rate=1e-3, **RECIPES[recipe])
-        trained = time.perf_counter() - t1
-        losses = pipeline.model_losses(model)
-        print(f"{recipe}: {args.epochs} epochs, {trained:.0f} s (this call), test MSE {np.mean(losses['mse']):.4f}")
-        for floor in (0.0, PHASE_FLOOR):
-            loaded = synthesis2022.Loaded(model, data, args.run / recipe, args.epochs, floor)
-            rows += measure(loaded, styles, recipe)
+        for seed in args.seeds:
+            name = recipe if seed == 0 else f"{recipe} seed {seed}"
+            folder = args.run / name.replace(" ", "_")
+            t1 = time.perf_counter()
+            model = pipeline.train_model(data, config, folder, epochs=args.epochs, progress=False,
+                                         learning_rate=1e-3, seed=seed, **RECIPES[recipe])
+            trained = time.perf_counter() - t1
+            losses = pipeline.model_losses(model)
+            print(f"{name}: {args.epochs} epochs, {trained:.0f} s (this call), test MSE {np.mean(losses['mse']):.4f}",
+                  flush=True)
+            for floor in (0.0, PHASE_FLOOR):
+                loaded = synthesis2022.Loaded(model, data, folder, args.epochs, floor)
+                rows += measure(loaded, styles, name)
     write_report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
                  f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")
 
