@@ -247,7 +247,7 @@ def test_trained_pfnn_backbone_keeps_its_phase_near_the_data_rate(loaded):
     docs/mason2022.md at 0.8-1.05)."""
     model, ds, char, upm, rows, speed, row = _neutral(loaded)
     x_norm, y_norm = ds.normalisers()
-    ratio = lpn_phases.phase_ratio(model.params, model.config, char.conditioning, x_norm, y_norm, ds, rows)
+    ratio = lpn_phases.phase_ratio(model.params, model.config, char.conditioning, (x_norm, y_norm), ds, rows)
     character = loaded.character_model()
     state = character.initial_state(ds, row, char.conditioning)
     assert float(state.phase_ratio) == pytest.approx(ratio, rel=1e-6)  # the character's start fits the same rate

@@ -549,7 +549,7 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
     x_norm, y_norm = data.base.normalisers()
 
     def ratio(runtime, name):
-        return lpn_phases.phase_ratio(model.params, config, runtime, x_norm, y_norm, data.base,
+        return lpn_phases.phase_ratio(model.params, config, runtime, (x_norm, y_norm), data.base,
                                           style_rows(data.base, name))
 
     want = {n: ratio(m.styles[n].conditioning, n) for n in ("Neutral", "Crouched")}

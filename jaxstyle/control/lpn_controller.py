@@ -281,7 +281,7 @@ class StyleNetModel:
 
     def step(self, style, state: LPNState, control) -> tuple[LPNState, LPNRollout]:
         """One frame: the LPN-layout input from the carried state, the network with ``style`` and
-        its gate (:func:`_gate`), then :func:`advance`."""
+        its gate (:func:`jaxstyle.control.lpn_phases.gate_input`), then :func:`advance`."""
         x = jnp.concatenate([trajectory_input(state.hist_xz, state.hist_yaw, state.future, control, self.blend_bias),
                              state.joints])
         x_n = ((x - self.x_norm[0]) / self.x_norm[1])[None]
@@ -297,7 +297,7 @@ class StyleNetModel:
         MANN backbones, which do not read the global phase."""
         if self.config.backbone != "pfnn":
             return 1.0
-        return float(phase_ratio(self.params, self.config, style, self.x_norm, self.y_norm, dataset,
+        return float(phase_ratio(self.params, self.config, style, (self.x_norm, self.y_norm), dataset,
                                  style_rows(dataset, name), gate_columns=self.gate_columns))
 
     def initial_state(self, dataset, row: int, style=None) -> LPNState:

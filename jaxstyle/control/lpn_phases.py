@@ -120,22 +120,23 @@ def global_phase_ratio(global_phase_N: np.ndarray, omega_N: np.ndarray, clip_N: 
     return float(dg.sum() / dl.sum())
 
 
-def phase_ratio(params: dict, config: StyleModelConfig, style, x_norm: Normaliser, y_norm: Normaliser, dataset,
+def phase_ratio(params: dict, config: StyleModelConfig, style, normalisers: tuple[Normaliser, Normaliser], dataset,
                 rows: np.ndarray, *, gate_columns=None, max_rows: int = 2048) -> float:
     """:func:`global_phase_ratio` of the network's own predicted local advance on the LPN
     ``dataset``'s ``rows`` (one style's training rows; the first ``max_rows`` in clip and frame
     order), each evaluated at its real input and gate (the row's global phase for the PFNN
-    backbone) with the character's runtime ``style``: the ratio that turns this network's
-    predicted local advance into the style's global-phase rate (see the module docstring)."""
+    backbone) with the character's runtime ``style`` and the network's (input, output)
+    ``normalisers``: the ratio that turns this network's predicted local advance into the style's
+    global-phase rate (see the module docstring)."""
     rows = np.asarray(rows)
     rows = rows[np.lexsort((dataset.frame[rows], dataset.clip[rows]))][:max_rows]
     if len(dataset.global_phase) != len(dataset.inputs) or len(rows) < 2:
         return 1.0
-    xm, xs = normaliser_arrays(x_norm)
-    ym, ys = normaliser_arrays(y_norm)
+    (xm, xs), (ym, ys) = (normaliser_arrays(n) for n in normalisers)
     x_n = (jnp.asarray(dataset.inputs[rows], jnp.float32) - xm) / xs
     gate = gate_input(config, jnp.asarray(dataset.phases[rows], jnp.float32),
-                 jnp.asarray(dataset.global_phase[rows], jnp.float32), x_n, check_gate_columns(config, gate_columns))
+                      jnp.asarray(dataset.global_phase[rows], jnp.float32), x_n,
+                      check_gate_columns(config, gate_columns))
     y = style_models.model_apply(params, config, x_n, gate, style) * ys + ym
     omega = np.asarray(predicted_advance(y, LPNLayout.of_inputs(x_n.shape[1]).num_bones))
     return global_phase_ratio(dataset.global_phase[rows], omega, dataset.clip[rows], dataset.frame[rows])
