@@ -11,8 +11,10 @@ Protocol (fixed):
 2. Models: LPN-FiLM at the demo's size (256 hidden units, a FiLM generator of 32 filters and 512
    dense units), ``--epochs`` epochs at Adam 1e-3 (the demo's rate), one per recipe
    (:class:`jaxstyle.mason2022.train.LPNTrainConfig`): ``paper`` (the paper's losses),
-   ``noise`` (``input_noise`` 1.0 on the normalised inputs) and ``rollout`` (``rollout_steps``
-   4: windows of 5 frames fed the network's own outputs). ``--seeds``: each recipe is trained
+   ``noise`` (``input_noise`` 1.0 on the normalised inputs), ``rollout`` (``rollout_steps``
+   4: windows of 5 frames fed the network's own outputs), ``contact1`` and ``contact10``
+   (``contact_loss_weight`` 1 and 10: :func:`jaxstyle.mason2022.loss.contact_loss`, planted
+   feet do not move). ``--seeds``: each recipe is trained
    once per seed (the initial weights, the batches and the dropout masks,
    :attr:`jaxstyle.mason2022.train.LPNTrainConfig.seed`; default seed 0 alone), named
    ``<recipe> seed <n>`` for seeds other than 0. Trained models are kept in ``--run/<name>`` and
@@ -26,7 +28,10 @@ Protocol (fixed):
    :data:`jaxstyle.output.quality.STALL_RATIO`), steps per second after foot locking, raw foot
    skating of the network's joints, feet on the floor, style distance, each beside the capture;
    how much the pose moves (the standard deviation over time of the joints' positions in the
-   root's frame, after the first second, in metres).
+   root's frame, after the first second, in metres); how fast the feet move while the network
+   itself says they are planted (``planted_speed_m_s``, :func:`planted_speed`: the horizontal
+   speed of the ankles and toes while their foot's predicted contact label is on, after the first
+   second; the capture's from its rows' velocities and contact labels) beside the root's speed.
 
 ``--model DIR`` (repeatable) measures already trained models instead (e.g. the paper-size
 ``RUN/lpn`` of ``jaxstyle lpn``, reloaded with :func:`jaxstyle.mason2022.synthesis.load_model`, its
@@ -48,16 +53,19 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.folders import PAPER_BASE, available_styles
 from jaxstyle.data.locate import mocap_dir
+from jaxstyle.data.lpn_features import LPNLayout, bone_points
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2022 import pipeline, report
+from jaxstyle.mason2022 import pipeline, report, styledata
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import drive, quality
 from jaxstyle.output import report as quality_report
 from jaxstyle.train.defaults import PHASE_FLOOR
 
-RECIPES = {"paper": {}, "noise": {"input_noise": 1.0}, "rollout": {"rollout_steps": 4}}
+RECIPES = {"paper": {}, "noise": {"input_noise": 1.0}, "rollout": {"rollout_steps": 4},
+           "contact1": {"contact_loss_weight": 1.0}, "contact10": {"contact_loss_weight": 10.0}}
 PATHS = ("straight", "circle")
 SECONDS = 10.0
 
@@ -71,6 +79,83 @@ def pose_motion_m(positions_TxJx3: np.ndarray, yaw_T: np.ndarray, origin_Tx2: np
     c, s = np.cos(-yaw_T[start:])[:, None], np.sin(-yaw_T[start:])[:, None]
     local = np.stack([c * rel_x + s * rel_z, p[..., 1], -s * rel_x + c * rel_z], axis=-1)
     return float(local.std(axis=0).mean() / upm)
+
+
+def planted_speed(positions_TxJx3: np.ndarray, contacts_Tx2: np.ndarray, skeleton, upm: float, start: int) -> float:
+    """Mean horizontal speed (m/s) of the ankles and toes from frame ``start`` on over the frame
+    steps where their foot's contact label (the network's own output, ``>= 0.5``) is on at both
+    ends (:func:`jaxstyle.mason2022.styledata.foot_bones`; NaN when never on)."""
+    feet, side = (list(a) for a in styledata.foot_bones(skeleton))
+    p = positions_TxJx3[start:, feet][..., [0, 2]]
+    on = np.asarray(contacts_Tx2)[start:, side] >= 0.5
+    speed = np.linalg.norm(np.diff(p, axis=0), axis=-1) * skeleton.fps / upm
+    both = on[1:] & on[:-1]
+    return float(speed[both].mean()) if both.any() else float("nan")
+
+
+def stance_sweep(positions_TxJx3: np.ndarray, contacts_Tx2: np.ndarray, origin_Tx2: np.ndarray, yaw_T: np.ndarray,
+                 skeleton, start: int) -> float:
+    """How fast the planted feet sweep backwards under the body, over the root's speed: the mean,
+    over the frame steps where their foot's contact label is on at both ends (from ``start``), of
+    the ankles' and toes' velocity in the root's ground frame along the root's direction of
+    travel (backwards positive), divided by the mean root speed over the same steps (the root's
+    turn within a frame ignored). 1 for a foot that stays put while the root walks on; below 1,
+    the leg sweeps too slowly for the root and the foot slides forwards. NaN when never on."""
+    feet, side = (list(a) for a in styledata.foot_bones(skeleton))
+    p, o, yaw = positions_TxJx3[start:, feet], origin_Tx2[start:], yaw_T[start:]
+    on = np.asarray(contacts_Tx2)[start:, side] >= 0.5
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    rx, rz = p[..., 0] - o[:, None, 0], p[..., 2] - o[:, None, 1]
+    local = np.stack([c * rx - s * rz, s * rx + c * rz], axis=-1)  # rotate_xz by -yaw: the root frame
+    step_local = np.diff(local, axis=0)  # (T-1, F, 2)
+    root = np.diff(o, axis=0)
+    root_local = np.stack([c[:-1, 0] * root[:, 0] - s[:-1, 0] * root[:, 1],
+                           s[:-1, 0] * root[:, 0] + c[:-1, 0] * root[:, 1]], axis=-1)
+    speed = np.linalg.norm(root_local, axis=-1)
+    ahead = root_local / np.maximum(speed, 1e-9)[:, None]
+    back = -np.sum(step_local * ahead[:, None], axis=-1)
+    both = on[1:] & on[:-1]
+    if not both.any():
+        return float("nan")
+    return float(back[both].mean() / np.broadcast_to(speed[:, None], both.shape)[both].mean())
+
+
+def capture_planted_speed(dataset, name: str, skeleton, upm: float) -> float:
+    """:func:`planted_speed` of style ``name``'s capture: the ankles' and toes' horizontal
+    velocities in its rows (:func:`jaxstyle.data.datasets.style_rows`) where the next frame's
+    contact label of their foot is on."""
+    feet, side = (list(a) for a in styledata.foot_bones(skeleton))
+    y = dataset.outputs[style_rows(dataset, name)]
+    groups = LPNLayout(len(bone_points(skeleton)[2])).output_groups
+    v = y[:, groups["joint_velocity"]].reshape(len(y), -1, 3)[:, feet][..., [0, 2]]
+    on = y[:, groups["foot_contact"]][:, side] >= 0.5
+    return float(np.linalg.norm(v, axis=-1)[on].mean() * skeleton.fps / upm)
+
+
+def teacher_forced_contact(model: pipeline.Model) -> tuple[float, float]:
+    """The teacher-forced :func:`jaxstyle.mason2022.loss.contact_loss` (metres per frame) of
+    ``model`` on its test rows (mean over styles, dropout off, a FiLM model with each style's FiLM
+    vector), and the capture's (the captured next frame in place of the prediction)."""
+    from jaxstyle.mason2022.loss import contact_loss
+    from jaxstyle.mason2022.train import film_vectors
+    from jaxstyle.nn import style_models
+
+    data, config, params = model.data, model.config, model.params
+    vectors = film_vectors(params, data) if config.modulation == "film" else None
+    got, capture = [], []
+    for s, rows in enumerate(data.test_rows):
+        style = vectors[s] if vectors is not None else style_models.style_runtime(params, config, s)
+        pred = style_models.model_apply(params, config, data.x[rows], data.gate[rows], style)
+        got.append(float(contact_loss(data.x[rows], pred, data.y[rows], data.bones)))
+        capture.append(float(contact_loss(data.x[rows], data.y[rows], data.y[rows], data.bones)))
+    return float(np.mean(got)), float(np.mean(capture))
+
+
+def model_line(model: pipeline.Model) -> str:
+    """The test MSE and teacher-forced contact loss (:func:`teacher_forced_contact`)."""
+    contact, capture = teacher_forced_contact(model)
+    return (f"test MSE {np.mean(pipeline.model_losses(model)['mse']):.4f}, test contact loss {contact:.4f} m/frame "
+            f"(capture {capture:.4f})")
 
 
 def runtime_name(floor: float) -> str:
@@ -91,32 +176,54 @@ def measure(loaded: synthesis2022.Loaded, styles, recipe: str, new_styles=()) ->
     rows = quality.measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton,
                                     driven.speeds).rows
     out = jax.tree.map(np.asarray, driven.rollouts)
+    start = int(skeleton.fps)
     for k, (i, p) in enumerate(driven.pairs):
         r = next(r for r in rows if r["style"] == chars[i].title and r["path"] == p)
-        r["pose_motion_m"] = pose_motion_m(out.positions[k][:, :skeleton.num_joints], out.yaw[k], out.origin[k],
-                                           upm, int(skeleton.fps))
+        positions = out.positions[k][:, :skeleton.num_joints]
+        r["pose_motion_m"] = pose_motion_m(positions, out.yaw[k], out.origin[k], upm, start)
+        r["planted_speed_m_s"] = planted_speed(positions, out.contacts[k], skeleton, upm, start)
+        r["root_speed_m_s"] = float(np.linalg.norm(np.diff(out.origin[k][start:], axis=0), axis=-1).mean()
+                                    * skeleton.fps / upm)
+        r["stance_sweep"] = stance_sweep(positions, out.contacts[k], out.origin[k], out.yaw[k], skeleton, start)
+    for c, speed in zip(chars, driven.speeds, strict=True):
+        r = next(r for r in rows if r["style"] == c.title and r["path"] == "capture")
+        r["planted_speed_m_s"] = capture_planted_speed(c.dataset, c.style, skeleton, upm)
+        r["root_speed_m_s"] = float(speed)
     group = {"model": f"{recipe}, {runtime_name(loaded.phase_floor)}", "recipe": recipe,
              "phase_floor": loaded.phase_floor}
     return [{**r, **group} for r in rows]
 
 
 def summary(rows: list[dict]) -> list[str]:
-    """One line per (recipe, runtime) from :func:`jaxstyle.mason2022.report.closed_loop_figures`."""
+    """One line per (recipe, runtime) from :func:`jaxstyle.mason2022.report.closed_loop_figures`,
+    with the medians of the planted feet's and the root's speeds (:func:`planted_speed`) of the
+    generated rows and of their captures, and of the generated rows' :func:`stance_sweep`."""
     lines = ["| recipe | runtime | rows stalled | median phase rate / capture | rows stepping within 25% of "
-             "capture | median steps/s / capture | median raw skating / capture | median style distance m |",
-             "|---|---|---|---|---|---|---|---|"]
+             "capture | median steps/s / capture | median raw skating / capture | median style distance m | "
+             "median planted-foot / root speed m/s (capture) | median stance sweep / root speed |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     groups = {r["model"]: r for r in rows}
+
+    def med(mine, key):
+        return float(np.nanmedian([r.get(key, np.nan) for r in mine])) if mine else np.nan
+
     for model, f in report.closed_loop_figures(rows).items():
         n = f["rows"] - f["diverged"]
+        gen = [r for r in rows if r["model"] == model and r["path"] != "capture"]
+        cap = [r for r in rows if r["model"] == model and r["path"] == "capture"]
         lines.append(f"| {groups[model]['recipe']} | {runtime_name(groups[model]['phase_floor'])} | "
                      f"{f['stalled']} / {n} | {f['phase_rate_ratio']:.2f} | {f['stepping']} / {n} | "
-                     f"{f['steps_ratio']:.2f} | {f['skating_ratio']:.1f} | {f['style_distance']:.2f} |")
+                     f"{f['steps_ratio']:.2f} | {f['skating_ratio']:.1f} | {f['style_distance']:.2f} | "
+                     f"{med(gen, 'planted_speed_m_s'):.2f} / {med(gen, 'root_speed_m_s'):.2f} "
+                     f"({med(cap, 'planted_speed_m_s'):.2f} / {med(cap, 'root_speed_m_s'):.2f}) | "
+                     f"{med(gen, 'stance_sweep'):.2f} |")
     return lines
 
 
 def row_table(rows: list[dict]) -> list[str]:
     lines = ["| recipe | runtime | style | path | phase rate / capture | pose motion m | steps/s (capture) | "
-             "raw skating m/s (capture) | feet on floor (capture) | style distance m |", "|---|" * 1 + "---|" * 9]
+             "raw skating m/s (capture) | feet on floor (capture) | style distance m | planted-foot / root speed m/s "
+             "(capture) | stance sweep / root speed |", "|---|" * 1 + "---|" * 11]
     captures = {(r["model"], r["style"]): r for r in rows if r["path"] == "capture"}
     for r in rows:
         if r["path"] == "capture":
@@ -128,7 +235,9 @@ def row_table(rows: list[dict]) -> list[str]:
                      f"{r['phase_rate_ratio']:.2f}{stalled} | "
                      f"{r['pose_motion_m']:.3f} | {r['steps_per_s']:.2f} ({cap['steps_per_s']:.2f}) | "
                      f"{r['foot_skating_m_s']:.2f} ({cap['foot_skating_m_s']:.2f}) | {r['contact_fraction']:.2f} "
-                     f"({cap['contact_fraction']:.2f}) | {r['style_distance']:.2f} |")
+                     f"({cap['contact_fraction']:.2f}) | {r['style_distance']:.2f} | "
+                     f"{r['planted_speed_m_s']:.2f} / {r['root_speed_m_s']:.2f} "
+                     f"({cap['planted_speed_m_s']:.2f} / {cap['root_speed_m_s']:.2f}) | {r['stance_sweep']:.2f} |")
     return lines
 
 
@@ -146,8 +255,7 @@ def main(argv=None) -> None:
         rows = []
         for folder in args.model:
             loaded = synthesis2022.load_model(folder, cache=args.run / "cache")
-            print(f"{folder}: {loaded.model.name}, {loaded.epochs} epochs, "
-                  f"test MSE {np.mean(pipeline.model_losses(loaded.model)['mse']):.4f}")
+            print(f"{folder}: {loaded.model.name}, {loaded.epochs} epochs, {model_line(loaded.model)}")
             chosen = Path(folder) / "chosen_rates.json"
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
             for floor in (0.0, PHASE_FLOOR):
@@ -168,9 +276,7 @@ def main(argv=None) -> None:
             model = pipeline.train_model(data, config, folder, epochs=args.epochs, progress=False,
                                          learning_rate=1e-3, seed=seed, **RECIPES[recipe])
             trained = time.perf_counter() - t1
-            losses = pipeline.model_losses(model)
-            print(f"{name}: {args.epochs} epochs, {trained:.0f} s (this call), test MSE {np.mean(losses['mse']):.4f}",
-                  flush=True)
+            print(f"{name}: {args.epochs} epochs, {trained:.0f} s (this call), {model_line(model)}", flush=True)
             for floor in (0.0, PHASE_FLOOR):
                 loaded = synthesis2022.Loaded(model, data, folder, args.epochs, floor)
                 rows += measure(loaded, styles, name)

@@ -68,6 +68,9 @@ def add_arguments(p) -> None:
     p.add_argument("--rollout-steps", type=int, default=0,
                    help="rollout training: each row starts a window of 1 + N frames fed the network's own outputs "
                         "(not in the paper; 0: none; docs/mason2022.md, 'The closed loop: why it froze')")
+    p.add_argument("--contact-loss", type=non_negative, default=0.0,
+                   help="weight of the loss on planted feet moving, in metres per frame (not in the paper; 0: none; "
+                        "docs/mason2022.md, 'Feet that slide')")
     add_joint_map_arg(p)
     add_distributed_args(p)
     add_common(p)
@@ -155,9 +158,9 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
 
 
 def _speed_options(args) -> dict:
-    """``train_model`` options of --devices, --distributed, --batch-size, --bf16, --input-noise and
-    --rollout-steps (defaults: the paper's batch 32 and rate 1e-4, float32, one device, no noise,
-    no rollout training)."""
+    """``train_model`` options of --devices, --distributed, --batch-size, --bf16, --input-noise,
+    --rollout-steps and --contact-loss (defaults: the paper's batch 32 and rate 1e-4, float32, one
+    device, no noise, no rollout training, no contact loss)."""
     from jaxstyle.mason2022 import train as train_lpn
     from jaxstyle.train import shard
 
@@ -180,6 +183,8 @@ def _speed_options(args) -> dict:
         options["input_noise"] = args.input_noise
     if args.rollout_steps:
         options["rollout_steps"] = args.rollout_steps
+    if args.contact_loss:
+        options["contact_loss_weight"] = args.contact_loss
     if args.batch_size != train_lpn.PAPER_BATCH:
         scaled = train_lpn.with_batch_size(train_lpn.LPNTrainConfig(), args.batch_size)
         options.update(batch_size=scaled.batch_size, learning_rate=scaled.learning_rate)

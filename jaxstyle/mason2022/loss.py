@@ -4,9 +4,10 @@ the bone-length loss on the de-normalised joint positions in metres (the authors
 metres; 100STYLE files are in centimetres, so positions are divided by the skeleton's units per
 metre); a FiLM model's style comes from one training clip of the batch's style per step.
 
-Not in the paper, options evaluated against the closed loop's freezing (docs/mason2022.md):
-:func:`noisy_inputs` (noise on the normalised inputs) and :func:`rollout_loss` (windows of frames
-fed the network's own outputs through the runtime's feed-back).
+Not in the paper, options evaluated against the closed loop's freezing and sliding
+(docs/mason2022.md): :func:`noisy_inputs` (noise on the normalised inputs), :func:`rollout_loss`
+(windows of frames fed the network's own outputs through the runtime's feed-back) and
+:func:`contact_loss` (a foot the capture plants does not move).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxstyle.data.lpn_features import LPNLayout
-from jaxstyle.mason2022.styledata import BonePositions
+from jaxstyle.mason2022.styledata import BonePositions, FootContacts
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import lpn, style_models
 from jaxstyle.nn.style_models import StyleModelConfig
@@ -37,6 +38,42 @@ def losses(pred_BxO, y_BxO, bones: BonePositions) -> tuple[jax.Array, jax.Array]
     return mse, bll
 
 
+def _group(rows_BxD, group) -> jax.Array:
+    start, scale, offset = group
+    return rows_BxD[:, start:start + len(scale)] * scale + offset
+
+
+def contact_loss(x_BxD, pred_BxO, y_BxO, bones: BonePositions) -> jax.Array:
+    """Not in the paper: the mean over rows and foot joints (ankles and toes) of
+    ``c (|P - p| + |V|)`` in metres per frame, where ``c`` is the captured next frame's contact
+    label of the joint's foot, ``p`` the joint's position in the input (frame ``t``, in ``C_t``),
+    ``P`` and ``V`` the predicted next position (in ``C_t``) and velocity. A planted foot does not
+    move in the world, and ``P - p`` and ``V`` are its two predicted world displacements (the
+    runtime carries ``s P + (1 - s)(p + V)``, :func:`jaxstyle.control.lpn_controller.feed_back`).
+
+    Why: the MSE of Eq. 5 weighs a foot's position like any of the other 341 normalised outputs,
+    and with one standard deviation per feature group (about 0.3 m for positions) a 3 cm error
+    costs 0.01; on its test rows the demo-size model has this loss at 0.017-0.020 m per frame
+    against the capture's 0.0015, and its feet slide 3-8x the captures' in the closed loop.
+    Measured (docs/mason2022.md, "Feet that slide"): weight 10 lowers it by a quarter to a third
+    and steps on more rows, but the closed loop's planted feet slide as fast as without it. Foot
+    contact losses of this kind are common in motion synthesis (e.g. Shi et al. 2020,
+    "MotioNet"; Tevet et al. 2023, "Human Motion Diffusion Model")."""
+    c: FootContacts = bones.contact
+    n = len(c.x_position[1]) // 3
+    feet, side = jnp.asarray(c.feet), jnp.asarray(c.side)
+    p = _group(x_BxD, c.x_position).reshape(len(x_BxD), n, 3)[:, feet]
+    big_p = positions_m(pred_BxO, bones)[:, feet]
+    v = _group(pred_BxO, c.y_velocity).reshape(len(x_BxD), n, 3)[:, feet]
+    on = jnp.clip(_group(y_BxO, c.y_contact), 0.0, 1.0)[:, side]
+    return jnp.mean(on * (_norm(big_p - p) + _norm(v)))
+
+
+def _norm(v_Bx3: jax.Array) -> jax.Array:
+    """Euclidean norm over the last axis with a finite gradient at 0."""
+    return jnp.sqrt(jnp.sum(jnp.square(v_Bx3), axis=-1) + 1e-12)
+
+
 class Batch(NamedTuple):
     """One minibatch: rows ``idx_B`` of style ``style``; a FiLM model's style comes from training
     clip ``clip`` (scalars or traced arrays)."""
@@ -49,11 +86,13 @@ class Batch(NamedTuple):
 class LossWeights(NamedTuple):
     """The objective's settings, traced (arrays, so sweeps vmap over them): ``rate``, the dropout
     rate; ``bone_loss_weight``, Eq. 6's weight of the bone-length loss; ``input_noise``, the standard
-    deviation of :func:`noisy_inputs` (0: the paper's recipe)."""
+    deviation of :func:`noisy_inputs`; ``contact_weight``, the weight of :func:`contact_loss`
+    (0 for both: the paper's recipe)."""
 
     rate: Any
     bone_loss_weight: Any
     input_noise: Any = 0.0
+    contact_weight: Any = 0.0
 
 
 def _style(params, config: StyleModelConfig, clips, style, clip, key, rate):
@@ -66,8 +105,9 @@ def batch_loss(params, config: StyleModelConfig, arrays, batch: Batch, key, weig
                bones: BonePositions) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
     """``MSE + w BLL`` of one minibatch (:class:`Batch`: rows of one style, a FiLM model's
     parameters from one clip) with the dropout rate, bone-length weight and input noise of
-    ``weights`` (:class:`LossWeights`; noise 0 gives the same value as the paper's recipe);
-    returns the total and ``(mse, bll)``."""
+    ``weights`` (:class:`LossWeights`; noise 0 gives the same value as the paper's recipe), plus
+    ``contact_weight`` times :func:`contact_loss` when the bones carry the feet; returns the total
+    and ``(mse, bll)``."""
     x, y, gate, clips = arrays
     idx_B, style, clip = batch
     rate = weights.rate
@@ -76,7 +116,16 @@ def batch_loss(params, config: StyleModelConfig, arrays, batch: Batch, key, weig
     x_B = noisy_inputs(x[idx_B], jax.random.fold_in(key, 1), weights.input_noise)
     pred = style_models.model_apply(params, config, x_B, gate[idx_B], st, key=k_model, dropout_rate=rate)
     mse, bll = losses(pred, y[idx_B], bones)
-    return mse + weights.bone_loss_weight * bll, (mse, bll)
+    return mse + weights.bone_loss_weight * bll + _contact_term(x[idx_B], pred, y[idx_B], bones, weights), (mse, bll)
+
+
+def _contact_term(x_BxD, pred_BxO, y_BxO, bones: BonePositions, weights: LossWeights):
+    """``contact_weight * contact_loss``; 0, not computed, for bones without feet or a weight of
+    ``None`` or a Python 0 (the paper's recipe and the fine-tuning sweeps pay nothing for it)."""
+    w = weights.contact_weight
+    if bones.contact is None or w is None or (isinstance(w, (int, float)) and w == 0):
+        return 0.0
+    return weights.contact_weight * contact_loss(x_BxD, pred_BxO, y_BxO, bones)
 
 
 def noisy_inputs(x_BxD: jax.Array, key: jax.Array, std) -> jax.Array:
@@ -112,7 +161,7 @@ def rollout_loss(params, config: StyleModelConfig, arrays, feedback, batch: Batc
     x, y, gate, clips = arrays
     next_row, x_mean, x_std, y_mean, y_std = feedback
     idx_B, style, clip = batch
-    rate, bone_loss_weight, input_noise = weights
+    rate, bone_loss_weight, input_noise = weights.rate, weights.bone_loss_weight, weights.input_noise
     layout = LPNLayout.of_inputs(x.shape[1])
     j0 = layout.input_groups["joint_position"].start
     k_style, k_model = jax.random.split(key)
@@ -125,7 +174,8 @@ def rollout_loss(params, config: StyleModelConfig, arrays, feedback, batch: Batc
         pred = style_models.model_apply(params, config, noisy_inputs(x_B, jax.random.fold_in(kk, 1), input_noise),
                                         g_B, st, key=kk, dropout_rate=rate)
         mse, bll = losses(pred, y[rows], bones)
-        total, mse_sum, bll_sum = total + mse + bone_loss_weight * bll, mse_sum + mse, bll_sum + bll
+        step = mse + bone_loss_weight * bll + _contact_term(x_B, pred, y[rows], bones, weights)
+        total, mse_sum, bll_sum = total + step, mse_sum + mse, bll_sum + bll
         if k < steps:
             joints = x_B[:, j0:] * x_std[j0:] + x_mean[j0:]
             _, nxt_joints, phases = jax.vmap(feed_back, in_axes=(0, 0, 0, None))(

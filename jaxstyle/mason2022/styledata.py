@@ -3,8 +3,9 @@
 (:class:`StyleData`: inputs, outputs, the gating input of the backbone, normalised style clips, and
 per style its training / validation / test rows and training clips, clips lying wholly in training
 rows), with where the joint positions sit in the outputs (:class:`BonePositions`, for the
-bone-length loss), each row's next frame (:func:`next_rows`, for rollout training) and the arrays
-as the jitted losses take them (:func:`device_arrays`, :class:`StaticBones`).
+bone-length loss; :class:`FootContacts`, for the contact loss), each row's next frame
+(:func:`next_rows`, for rollout training) and the arrays as the jitted losses take them
+(:func:`device_arrays`, :class:`StaticBones`).
 """
 
 from __future__ import annotations
@@ -16,19 +17,43 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxstyle.data.datasets import consecutive_rows
-from jaxstyle.data.lpn_features import LPNLayout, bone_parents, end_effector_columns
+from jaxstyle.data.lpn_features import LPNLayout, bone_parents, bone_points, end_effector_columns
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
+from jaxstyle.motion.skeleton import find_feet_and_hands
+
+
+class FootContacts(NamedTuple):
+    """Where the feet sit in the rows, for :func:`jaxstyle.mason2022.loss.contact_loss`: ``feet``
+    the LPN bone indices of the ankles and toes, ``side`` each one's foot (0 left, 1 right: the
+    order of the outputs' ``foot_contact``); per group ``(start, scale, offset)`` de-normalising
+    the inputs' joint positions (``x_position``, to metres), the outputs' joint velocities
+    (``y_velocity``, metres per frame) and the outputs' foot contacts (``y_contact``, labels in
+    ``[0, 1]``): ``value = row[start:start + n] * scale + offset``."""
+
+    feet: tuple[int, ...]
+    side: tuple[int, ...]
+    x_position: tuple
+    y_velocity: tuple
+    y_contact: tuple
+
+    def key(self) -> tuple:
+        """The hashable identity of the values (for :class:`StaticBones`)."""
+        return (self.feet, self.side) + tuple(
+            (g[0], np.asarray(g[1]).tobytes(), np.asarray(g[2]).tobytes())
+            for g in (self.x_position, self.y_velocity, self.y_contact))
 
 
 class BonePositions(NamedTuple):
     """Where the joint positions sit in the outputs and how to de-normalise them to metres:
-    ``metres = y[:, start:start + 3 J] * scale + offset``; ``parents (J,)`` of the bones."""
+    ``metres = y[:, start:start + 3 J] * scale + offset``; ``parents (J,)`` of the bones;
+    ``contact``: the feet's :class:`FootContacts` (``None``: no contact loss possible)."""
 
     start: int
     scale: np.ndarray
     offset: np.ndarray
     parents: tuple[int, ...]
+    contact: FootContacts | None = None
 
 
 class StyleData(NamedTuple):
@@ -117,7 +142,8 @@ def style_data(dataset, skeleton: Motion, *, backbone: str = "lpn", styles: Sequ
     if len(parents) != layout.num_bones:
         raise ValueError(f"the skeleton has {len(parents)} LPN bones, the dataset {layout.num_bones}")
     bones = BonePositions(pos.start, (y_norm.std[pos] / unit).astype(np.float32),
-                          (y_norm.mean[pos] / unit).astype(np.float32), tuple(int(p) for p in parents))
+                          (y_norm.mean[pos] / unit).astype(np.float32), tuple(int(p) for p in parents),
+                          foot_contacts(skeleton, layout, (x_norm, y_norm), unit))
     train_clips = tuple(dataset.clips_of_style(s, "train") for s in styles)
     for s, c in zip(styles, train_clips, strict=True):
         if len(c) == 0:
@@ -129,13 +155,42 @@ def style_data(dataset, skeleton: Motion, *, backbone: str = "lpn", styles: Sequ
                      next_rows(dataset.clip, dataset.frame), stats)
 
 
+def foot_bones(skeleton: Motion) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The LPN bone indices of the ankles then the toes (found by name,
+    :func:`jaxstyle.motion.skeleton.find_feet_and_hands`), and each one's foot (0 left, 1 right)."""
+    names = bone_points(skeleton)[2]
+    found = find_feet_and_hands(skeleton.names, skeleton.source, skeleton.joint_map)
+    feet, side = [], []
+    for group in ("ankles", "toes"):
+        for s, name in enumerate(found[group]):  # (left, right)
+            feet.append(names.index(name))
+            side.append(s)
+    return tuple(feet), tuple(side)
+
+
+def foot_contacts(skeleton: Motion, layout: LPNLayout, normalisers, units_per_meter: float) -> FootContacts:
+    """The :class:`FootContacts` of an LPN layout on ``skeleton`` (:func:`foot_bones`) with the
+    (input, output) normalisers ``(x_norm, y_norm)``."""
+    feet, side = foot_bones(skeleton)
+    x_norm, y_norm = normalisers
+
+    def group(norm, sl, unit=1.0):
+        return (sl.start, (norm.std[sl] / unit).astype(np.float32), (norm.mean[sl] / unit).astype(np.float32))
+
+    return FootContacts(feet, side,
+                        group(x_norm, layout.input_groups["joint_position"], units_per_meter),
+                        group(y_norm, layout.output_groups["joint_velocity"], units_per_meter),
+                        group(y_norm, layout.output_groups["foot_contact"]))
+
+
 class StaticBones:
     """Wraps :class:`BonePositions` so ``jit`` can take it as a static argument (by identity of
     its values)."""
 
     def __init__(self, bones: BonePositions):
         self.bones = bones
-        self._key = (bones.start, bones.parents, bones.scale.tobytes(), bones.offset.tobytes())
+        self._key = (bones.start, bones.parents, bones.scale.tobytes(), bones.offset.tobytes(),
+                     None if bones.contact is None else bones.contact.key())
 
     def __hash__(self):
         return hash(self._key)

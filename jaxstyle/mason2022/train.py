@@ -40,9 +40,10 @@ class LPNTrainConfig:
     """Paper: batch 32, Adam 1e-4, dropout 0.3 everywhere, MSE + BLL weighted 1:1, 90 epochs.
 
     Not in the paper (0: its recipe): ``input_noise``, Gaussian noise on the normalised inputs
-    (:func:`jaxstyle.mason2022.loss.noisy_inputs`), and ``rollout_steps``, rollout training: each
+    (:func:`jaxstyle.mason2022.loss.noisy_inputs`); ``rollout_steps``, rollout training: each
     batch row starts a window of ``1 + rollout_steps`` consecutive frames in which the network reads
-    its own previous output (:func:`jaxstyle.mason2022.loss.rollout_loss`)."""
+    its own previous output (:func:`jaxstyle.mason2022.loss.rollout_loss`); ``contact_loss_weight``,
+    the weight of :func:`jaxstyle.mason2022.loss.contact_loss` (planted feet do not move)."""
 
     model: StyleModelConfig = StyleModelConfig()
     epochs: int = 90
@@ -54,7 +55,11 @@ class LPNTrainConfig:
     log_every: int = 50
     input_noise: float = 0.0
     rollout_steps: int = 0
+    contact_loss_weight: float = 0.0
 
+
+#: The options outside the paper's recipe, written to ``config.json`` only when set.
+EXTRA_OPTIONS = ("input_noise", "rollout_steps", "contact_loss_weight")
 
 PAPER_BATCH = 32
 
@@ -95,14 +100,14 @@ COMPUTE_DTYPES = ("float32", "bfloat16")
 
 
 def _step_loss(params, config: StyleModelConfig, arrays, inputs, key, rate, weight, bones, compute_dtype: str,
-               noise=0.0, feedback=None, rollout_steps: int = 0):
+               noise=0.0, feedback=None, rollout_steps: int = 0, contact_weight=None):
     """One step's loss; ``compute_dtype="bfloat16"`` casts every weight matrix to bfloat16 for the
     products (accumulated in float32: :func:`jaxstyle.nn.pfnn.pf_dense`,
     :func:`jaxstyle.nn.film_generator.generator_apply`), the float32 master weights get float32
     gradients through the cast and Adam runs in float32 (mixed precision, Micikevicius et al. 2018)."""
     if compute_dtype != "float32":
         params = pfnn.cast_weights(params, jnp.dtype(compute_dtype))
-    weights = LossWeights(rate, weight, noise)
+    weights = LossWeights(rate, weight, noise, contact_weight)
     if rollout_steps:
         return rollout_loss(params, config, arrays, feedback, Batch(*inputs), key, weights, bones_of(bones),
                             steps=rollout_steps)
@@ -112,8 +117,8 @@ def _step_loss(params, config: StyleModelConfig, arrays, inputs, key, rate, weig
 @functools.partial(jax.jit, static_argnames=("config", "bones", "learning_rate", "compute_dtype", "rollout_steps"),
                    donate_argnames=("params", "opt_state"))
 def _train_chunk(params, opt_state, arrays, batches_TxB, styles_T, clips_T, keys_T, rate, weight, noise=0.0,
-                 feedback=None, *, config: StyleModelConfig, bones: BonePositions, learning_rate: float,
-                 compute_dtype: str = "float32", rollout_steps: int = 0):
+                 feedback=None, contact_weight=None, *, config: StyleModelConfig, bones: BonePositions,
+                 learning_rate: float, compute_dtype: str = "float32", rollout_steps: int = 0):
     """Steps of full training as one ``lax.scan``: per step the gradient of
     :func:`jaxstyle.mason2022.loss.batch_loss` and an ``optax.adam(learning_rate)`` update; returns
     the new parameters, optimiser state and per step ``(loss, mse, bll)``.
@@ -133,7 +138,8 @@ def _train_chunk(params, opt_state, arrays, batches_TxB, styles_T, clips_T, keys
         p, opt = carry
         *step_inputs, key = inputs
         (value, (mse, bll)), grads = jax.value_and_grad(_step_loss, has_aux=True)(
-            p, config, arrays, step_inputs, key, rate, weight, bones, compute_dtype, noise, feedback, rollout_steps)
+            p, config, arrays, step_inputs, key, rate, weight, bones, compute_dtype, noise, feedback, rollout_steps,
+            contact_weight)
         updates, opt = optimiser.update(grads, opt, p)
         return (optax.apply_updates(p, updates), opt), jnp.stack([value, mse, bll])
 
@@ -175,6 +181,8 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
     if config.model.num_styles != len(data.styles):
         raise ValueError(f"the model has {config.model.num_styles} styles, the data {len(data.styles)}")
     mesh = shard.data_mesh(devices)
+    if config.contact_loss_weight and data.bones.contact is None:
+        raise ValueError("contact_loss_weight needs the feet of the skeleton: build the data with style_data")
     feedback = None
     if config.rollout_steps:
         if config.rollout_steps < 0 or config.model.backbone == "mann":
@@ -203,7 +211,9 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
             params, opt_state, out = _train_chunk(
                 params, opt_state, arrays, batches_dev[a:b], styles_dev[a:b], clips_dev[a:b], keys[a:b],
                 jnp.float32(config.dropout_rate), jnp.float32(config.bone_loss_weight),
-                jnp.float32(config.input_noise), feedback, config=config.model, bones=bones,
+                jnp.float32(config.input_noise), feedback,
+                jnp.float32(config.contact_loss_weight) if config.contact_loss_weight else None,
+                config=config.model, bones=bones,
                 learning_rate=config.learning_rate, compute_dtype=compute_dtype, rollout_steps=config.rollout_steps)
             return state._replace(params=params, opt_state=opt_state), out
 
@@ -226,10 +236,9 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
 
 def _run_config(config: LPNTrainConfig, styles: Sequence[str], compute_dtype: str = "float32") -> dict:
     """``config.json`` of a run: the compute dtype only when it is not float32, and the options
-    outside the paper's recipe (``input_noise``, ``rollout_steps``) only when set, so the run
-    folders made before those options existed still resume and load."""
-    train = {k: v for k, v in dataclasses.asdict(config).items()
-             if not (k in ("input_noise", "rollout_steps") and not v)}
+    outside the paper's recipe (:data:`EXTRA_OPTIONS`) only when set, so the run folders made
+    before those options existed still resume and load."""
+    train = {k: v for k, v in dataclasses.asdict(config).items() if not (k in EXTRA_OPTIONS and not v)}
     train["model"] = config.model
     run = {"train": train, "styles": list(styles)}
     if compute_dtype != "float32":
