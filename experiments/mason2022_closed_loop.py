@@ -14,7 +14,8 @@ Protocol (fixed):
    ``noise`` (``input_noise`` 1.0 on the normalised inputs), ``rollout`` (``rollout_steps``
    4: windows of 5 frames fed the network's own outputs), ``contact1`` and ``contact10``
    (``contact_loss_weight`` 1 and 10: :func:`jaxstyle.mason2022.loss.contact_loss`, planted
-   feet do not move). ``--seeds``: each recipe is trained
+   feet do not move) and ``rollout_contact10`` (both: the contact loss on the network's own
+   fed-back frames too). ``--seeds``: each recipe is trained
    once per seed (the initial weights, the batches and the dropout masks,
    :attr:`jaxstyle.mason2022.train.LPNTrainConfig.seed`; default seed 0 alone), named
    ``<recipe> seed <n>`` for seeds other than 0. Trained models are kept in ``--run/<name>`` and
@@ -65,7 +66,8 @@ from jaxstyle.output import report as quality_report
 from jaxstyle.train.defaults import PHASE_FLOOR
 
 RECIPES = {"paper": {}, "noise": {"input_noise": 1.0}, "rollout": {"rollout_steps": 4},
-           "contact1": {"contact_loss_weight": 1.0}, "contact10": {"contact_loss_weight": 10.0}}
+           "contact1": {"contact_loss_weight": 1.0}, "contact10": {"contact_loss_weight": 10.0},
+           "rollout_contact10": {"rollout_steps": 4, "contact_loss_weight": 10.0}}
 PATHS = ("straight", "circle")
 SECONDS = 10.0
 
@@ -162,16 +164,16 @@ def runtime_name(floor: float) -> str:
     return "paper (no floor)" if floor == 0 else f"phase floor {floor:g}"
 
 
-def measure(loaded: synthesis2022.Loaded, styles, recipe: str, new_styles=()) -> list[dict]:
+def measure(loaded: synthesis2022.Loaded, styles, recipe: str, new_styles=(), blend_bias: float = 1.5) -> list[dict]:
     """The quality benchmark's rows (:func:`jaxstyle.output.quality.measure_rollouts`, the captures'
     included) of every style along :data:`PATHS`, each with its ``recipe``, ``phase_floor`` and
-    ``pose_motion_m``, and named ``model`` = ``"<recipe>, <runtime>"`` (one group of
-    :func:`jaxstyle.mason2022.report.closed_loop_figures`)."""
+    ``pose_motion_m``, driven with the trajectory blend's ``blend_bias``, and named ``model`` =
+    ``"<recipe>, <runtime>"`` (one group of :func:`jaxstyle.mason2022.report.closed_loop_figures`)."""
     skeleton = loaded.data.skeleton
     upm = estimate_units_per_meter(skeleton)
     chars = synthesis2022.characters(loaded, styles=styles, new_styles=new_styles, allow_failed=True)
-    driven = drive.drive(loaded.character_model(), chars, drive.Course(PATHS, SECONDS), units_per_meter=upm,
-                         fps=skeleton.fps)
+    driven = drive.drive(loaded.character_model(blend_bias=blend_bias), chars, drive.Course(PATHS, SECONDS),
+                         units_per_meter=upm, fps=skeleton.fps)
     subjects = [quality.subject(c, "base", loaded.model.name) for c in chars]
     rows = quality.measure_rollouts(subjects, driven.pairs, driven.signals, driven.rollouts, skeleton,
                                     driven.speeds).rows
@@ -249,6 +251,8 @@ def main(argv=None) -> None:
     p.add_argument("--recipes", nargs="+", choices=list(RECIPES), default=list(RECIPES))
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="train each recipe once per seed")
     p.add_argument("--model", type=Path, action="append", help="measure this trained model's folder instead")
+    p.add_argument("--blend-bias", type=float, default=1.5,
+                   help="the runtime's trajectory blend bias (default 1.5, the synthesis default)")
     args = p.parse_args(argv)
     if args.model:
         t0 = time.perf_counter()
@@ -259,7 +263,8 @@ def main(argv=None) -> None:
             chosen = Path(folder) / "chosen_rates.json"
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
             for floor in (0.0, PHASE_FLOOR):
-                rows += measure(loaded._replace(phase_floor=floor), list(loaded.model.data.styles), str(folder), new)
+                rows += measure(loaded._replace(phase_floor=floor), list(loaded.model.data.styles), str(folder), new,
+                                args.blend_bias)
         title = f"the models of {', '.join(map(str, args.model))} ({time.perf_counter() - t0:.0f} s)"
         return write_report(args, rows, title)
     root = args.data or mocap_dir() / "100style"
@@ -279,7 +284,7 @@ def main(argv=None) -> None:
             print(f"{name}: {args.epochs} epochs, {trained:.0f} s (this call), {model_line(model)}", flush=True)
             for floor in (0.0, PHASE_FLOOR):
                 loaded = synthesis2022.Loaded(model, data, folder, args.epochs, floor)
-                rows += measure(loaded, styles, name)
+                rows += measure(loaded, styles, name, blend_bias=args.blend_bias)
     write_report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
                  f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")
 
