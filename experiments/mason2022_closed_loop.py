@@ -57,9 +57,9 @@ import numpy as np
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.folders import PAPER_BASE, available_styles
 from jaxstyle.data.locate import mocap_dir
-from jaxstyle.data.lpn_features import LPNLayout, bone_points
+from jaxstyle.data.lpn_features import LPNLayout, bone_points, foot_bones
 from jaxstyle.labels.contacts import estimate_units_per_meter
-from jaxstyle.mason2022 import pipeline, report, styledata
+from jaxstyle.mason2022 import pipeline, report
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import drive, quality
 from jaxstyle.output import report as quality_report
@@ -86,8 +86,8 @@ def pose_motion_m(positions_TxJx3: np.ndarray, yaw_T: np.ndarray, origin_Tx2: np
 def planted_speed(positions_TxJx3: np.ndarray, contacts_Tx2: np.ndarray, skeleton, upm: float, start: int) -> float:
     """Mean horizontal speed (m/s) of the ankles and toes from frame ``start`` on over the frame
     steps where their foot's contact label (the network's own output, ``>= 0.5``) is on at both
-    ends (:func:`jaxstyle.mason2022.styledata.foot_bones`; NaN when never on)."""
-    feet, side = (list(a) for a in styledata.foot_bones(skeleton))
+    ends (:func:`jaxstyle.data.lpn_features.foot_bones`; NaN when never on)."""
+    feet, side = (list(a) for a in foot_bones(skeleton))
     p = positions_TxJx3[start:, feet][..., [0, 2]]
     on = np.asarray(contacts_Tx2)[start:, side] >= 0.5
     speed = np.linalg.norm(np.diff(p, axis=0), axis=-1) * skeleton.fps / upm
@@ -103,7 +103,7 @@ def stance_sweep(positions_TxJx3: np.ndarray, contacts_Tx2: np.ndarray, origin_T
     travel (backwards positive), divided by the mean root speed over the same steps (the root's
     turn within a frame ignored). 1 for a foot that stays put while the root walks on; below 1,
     the leg sweeps too slowly for the root and the foot slides forwards. NaN when never on."""
-    feet, side = (list(a) for a in styledata.foot_bones(skeleton))
+    feet, side = (list(a) for a in foot_bones(skeleton))
     p, o, yaw = positions_TxJx3[start:, feet], origin_Tx2[start:], yaw_T[start:]
     on = np.asarray(contacts_Tx2)[start:, side] >= 0.5
     c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
@@ -126,7 +126,7 @@ def capture_planted_speed(dataset, name: str, skeleton, upm: float) -> float:
     """:func:`planted_speed` of style ``name``'s capture: the ankles' and toes' horizontal
     velocities in its rows (:func:`jaxstyle.data.datasets.style_rows`) where the next frame's
     contact label of their foot is on."""
-    feet, side = (list(a) for a in styledata.foot_bones(skeleton))
+    feet, side = (list(a) for a in foot_bones(skeleton))
     y = dataset.outputs[style_rows(dataset, name)]
     groups = LPNLayout(len(bone_points(skeleton)[2])).output_groups
     v = y[:, groups["joint_velocity"]].reshape(len(y), -1, 3)[:, feet][..., [0, 2]]
@@ -153,11 +153,44 @@ def teacher_forced_contact(model: pipeline.Model) -> tuple[float, float]:
     return float(np.mean(got)), float(np.mean(capture))
 
 
+def teacher_forced_heads(model: pipeline.Model) -> tuple[float, float, float]:
+    """How far each head moves a planted foot, teacher-forced on the test rows: the mean over
+    the ankles and toes of the rows whose captured next frame has their foot's contact label on
+    (all styles' test rows together, dropout off) of the horizontal distance from the input
+    position to the predicted one (the position head) and of the predicted velocity (the
+    velocity head), and of the captured velocity (the capture), in m/s (rows at 60 fps)."""
+    from jaxstyle.mason2022.loss import _group
+    from jaxstyle.mason2022.train import film_vectors
+    from jaxstyle.nn import style_models
+
+    data, config, params, c = model.data, model.config, model.params, model.data.bones.contact
+    vectors = film_vectors(params, data) if config.modulation == "film" else None
+    feet, side = list(c.feet), list(c.side)
+    sums = np.zeros(3)
+    count = 0
+    for s, rows in enumerate(data.test_rows):
+        style = vectors[s] if vectors is not None else style_models.style_runtime(params, config, s)
+        pred = np.asarray(style_models.model_apply(params, config, data.x[rows], data.gate[rows], style))
+        n = len(c.x_position[1]) // 3
+        p = np.asarray(_group(data.x[rows], c.x_position)).reshape(len(rows), n, 3)[:, feet][..., [0, 2]]
+        big_p = np.asarray(_group(pred, (data.bones.start, data.bones.scale, data.bones.offset)))
+        big_p = big_p.reshape(len(rows), n, 3)[:, feet][..., [0, 2]]
+        v = np.asarray(_group(pred, c.y_velocity)).reshape(len(rows), n, 3)[:, feet][..., [0, 2]]
+        v_cap = np.asarray(_group(data.y[rows], c.y_velocity)).reshape(len(rows), n, 3)[:, feet][..., [0, 2]]
+        on = np.asarray(_group(data.y[rows], c.y_contact))[:, side] >= 0.5
+        sums += [np.linalg.norm(a, axis=-1)[on].sum() for a in (big_p - p, v, v_cap)]
+        count += on.sum()
+    return tuple(float(x) for x in sums / max(count, 1) * 60.0)
+
+
 def model_line(model: pipeline.Model) -> str:
-    """The test MSE and teacher-forced contact loss (:func:`teacher_forced_contact`)."""
+    """The test MSE, the teacher-forced contact loss (:func:`teacher_forced_contact`) and the two
+    heads' planted feet (:func:`teacher_forced_heads`)."""
     contact, capture = teacher_forced_contact(model)
+    pos, vel, cap = teacher_forced_heads(model)
     return (f"test MSE {np.mean(pipeline.model_losses(model)['mse']):.4f}, test contact loss {contact:.4f} m/frame "
-            f"(capture {capture:.4f})")
+            f"(capture {capture:.4f}), planted feet teacher-forced: position head {pos:.2f} m/s, velocity head "
+            f"{vel:.2f} m/s (capture {cap:.2f})")
 
 
 def runtime_name(floor: float) -> str:
@@ -253,6 +286,9 @@ def main(argv=None) -> None:
     p.add_argument("--model", type=Path, action="append", help="measure this trained model's folder instead")
     p.add_argument("--blend-bias", type=float, default=1.5,
                    help="the runtime's trajectory blend bias (default 1.5, the synthesis default)")
+    p.add_argument("--foot-smooth", type=float, default=None,
+                   help="the feet's weight of the predicted positions in the runtime's joint blend (default: the "
+                        "other joints' 0.5, the paper's runtime; StyleNetModel.create)")
     args = p.parse_args(argv)
     if args.model:
         t0 = time.perf_counter()
@@ -263,8 +299,8 @@ def main(argv=None) -> None:
             chosen = Path(folder) / "chosen_rates.json"
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
             for floor in (0.0, PHASE_FLOOR):
-                rows += measure(loaded._replace(phase_floor=floor), list(loaded.model.data.styles), str(folder), new,
-                                args.blend_bias)
+                rows += measure(loaded._replace(phase_floor=floor, foot_smooth=args.foot_smooth),
+                                list(loaded.model.data.styles), str(folder), new, args.blend_bias)
         title = f"the models of {', '.join(map(str, args.model))} ({time.perf_counter() - t0:.0f} s)"
         return write_report(args, rows, title)
     root = args.data or mocap_dir() / "100style"
@@ -283,7 +319,7 @@ def main(argv=None) -> None:
             trained = time.perf_counter() - t1
             print(f"{name}: {args.epochs} epochs, {trained:.0f} s (this call), {model_line(model)}", flush=True)
             for floor in (0.0, PHASE_FLOOR):
-                loaded = synthesis2022.Loaded(model, data, folder, args.epochs, floor)
+                loaded = synthesis2022.Loaded(model, data, folder, args.epochs, floor, args.foot_smooth)
                 rows += measure(loaded, styles, name, blend_bias=args.blend_bias)
     write_report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
                  f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")

@@ -216,11 +216,12 @@ def test_planted_speed_reads_the_networks_own_contact_labels(real):
     """The closed-loop experiment's planted-foot speed: the feet's horizontal speed over the frame
     steps their foot's label is on at both ends; the capture's from its velocities and labels."""
     from experiments.mason2022_closed_loop import capture_planted_speed, planted_speed, stance_sweep
+    from jaxstyle.data.lpn_features import foot_bones
     from jaxstyle.labels.contacts import estimate_units_per_meter
 
     ds, skeleton = real
     upm = estimate_units_per_meter(skeleton)
-    feet, side = styledata.foot_bones(skeleton)
+    feet, side = foot_bones(skeleton)
     assert len(feet) == 4 and sorted(side) == [0, 0, 1, 1]
     t = np.arange(120)
     positions = np.zeros((120, skeleton.num_joints, 3))
@@ -349,3 +350,17 @@ def test_lpn_command_passes_the_training_options_outside_the_paper():
     train_lpn.LPNTrainConfig(**{k: options[k] for k in ("contact_loss_weight", "rollout_steps", "input_noise")})
     with pytest.raises(SystemExit):
         parser.parse_args(["lpn", "--data", "d", "--run", "r", "--contact-loss", "-1"])
+
+
+def test_foot_smooth_flag_is_a_fraction():
+    """`jaxstyle synthesize` and `demo` take --foot-smooth in [0, 1] (default None: the paper's
+    runtime) and refuse anything else with argparse's one line."""
+    from jaxstyle.cli.main import build_parser
+
+    parser, _ = build_parser()
+    for command in (["synthesize"], ["demo"]):
+        assert parser.parse_args(command).foot_smooth is None
+        assert parser.parse_args([*command, "--foot-smooth", "0.1"]).foot_smooth == 0.1
+        for bad in ("1.5", "-0.1", "nan"):
+            with pytest.raises(SystemExit):
+                parser.parse_args([*command, "--foot-smooth", bad])

@@ -16,7 +16,7 @@ from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.control.model import rollout, rollout_batch, step_fn
 from jaxstyle.data.clips import ClipSpec
 from jaxstyle.data.datasets import load_clip
-from jaxstyle.data.lpn_features import bone_points
+from jaxstyle.data.lpn_features import bone_points, foot_bones
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.motion import kinematics
 from jaxstyle.motion.character_frame import CharacterFrames, rotate_yaw, to_local
@@ -208,6 +208,43 @@ def _small_lpn(x, y, backbone="lpn", modulation="film"):
     x_norm = Normaliser(x.mean(0), x.std(0) + 1e-3)
     y_norm = Normaliser(y.mean(0), y.std(0) + 1e-3)
     return config, params, x_norm, y_norm
+
+
+def test_foot_smooth_blends_only_the_feet(lpn_clip):
+    """StyleNetModel's foot_smooth: the ankles and toes carry s P + (1 - s)(p + V) with their own
+    s, every other joint the default 0.5; foot_smooth 0.5 is the paper's runtime exactly."""
+    m, feats = lpn_clip
+    x, y, p = feats.inputs, feats.outputs, feats.phases
+    config, params, x_norm, y_norm = _small_lpn(x, y)
+    num_bones = len(feats.bones)
+    feet = list(foot_bones(m)[0])
+    others = [b for b in range(num_bones) if b not in feet]
+    controls = loop.signal_controls(paths.circle(0.5, 0.5, 1.5, units_per_meter=100.0), follow_gain=1.0)
+    state = lpn_controller.initial_state(x[10], p[10], num_bones)
+    style = jnp.concatenate([0.3 * jnp.ones(16), jnp.zeros(16), 0.3 * jnp.ones(16), jnp.zeros(16)])
+    paper = StyleNetModel.create(params, config, (x_norm, y_norm))
+    half = StyleNetModel.create(params, config, (x_norm, y_norm), m, foot_smooth=0.5)
+    low = StyleNetModel.create(params, config, (x_norm, y_norm), m, foot_smooth=0.1)
+    s = low.joint_smooth()
+    assert s.shape == (num_bones, 1) and np.all(s[feet] == np.float32(0.1)) and np.all(s[others] == 0.5)
+    np.testing.assert_array_equal(np.asarray(rollout(paper, style, state, controls).positions),
+                                  np.asarray(rollout(half, style, state, controls).positions))
+    control = (controls.offsets[0], controls.yaw[0])
+    _, f_half = half.step(style, state, control)
+    _, f_low = low.step(style, state, control)
+    g = js.LPNLayout(num_bones).output_groups
+    moved_on = (np.asarray(state.joints[:3 * num_bones]).reshape(num_bones, 3)
+                + np.asarray(f_half.outputs[g["joint_velocity"]]).reshape(num_bones, 3))  # p + V in C_t
+    half_pos = np.asarray(f_half.outputs[g["joint_position"]]).reshape(num_bones, 3)
+    low_pos = np.asarray(f_low.outputs[g["joint_position"]]).reshape(num_bones, 3)
+    predicted = 2 * half_pos - moved_on  # P, from 0.5 P + 0.5 (p + V)
+    np.testing.assert_allclose(low_pos[feet], 0.1 * predicted[feet] + 0.9 * moved_on[feet], atol=1e-3)
+    np.testing.assert_array_equal(low_pos[others], half_pos[others])
+    assert np.abs(low_pos[feet] - half_pos[feet]).max() > 1e-3
+    with pytest.raises(ValueError, match="foot_smooth"):
+        StyleNetModel.create(params, config, (x_norm, y_norm), foot_smooth=0.1)
+    with pytest.raises(ValueError, match="foot_smooth"):
+        StyleNetModel.create(params, config, (x_norm, y_norm), m, foot_smooth=1.5)
 
 
 def test_lpn_batch_equals_single_rollouts_and_decodes(lpn_clip):

@@ -148,6 +148,10 @@ def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds:
     p.add_argument("--phase-floor", type=non_negative, default=PHASE_FLOOR, metavar="F",
                    help="2022 models: each limb's local phase advances at least F times its style's capture rate "
                         "per frame (0: the paper's runtime, whose closed loop can stall)")
+    p.add_argument("--foot-smooth", type=fraction, default=None, metavar="S",
+                   help="2022 models: the feet carry S of their predicted positions and 1 - S of their positions "
+                        "moved on by their predicted velocities (default: 0.5 like every joint, the paper's runtime; "
+                        "0.1 slides less, docs/mason2022.md 'Feet that slide')")
 
 
 def finite(text: str) -> float:
@@ -167,6 +171,14 @@ def non_negative(text: str) -> float:
     value = finite(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """argparse ``type``: a number in [0, 1]."""
+    value = finite(text)
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
     return value
 
 

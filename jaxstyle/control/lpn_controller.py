@@ -62,7 +62,7 @@ from jaxstyle.control.lpn_phases import (
     predicted_advance,
 )
 from jaxstyle.data.datasets import style_rows
-from jaxstyle.data.lpn_features import NUM_PHASE_FEATURES, LPNLayout, decode_lpn, end_effector_columns
+from jaxstyle.data.lpn_features import NUM_PHASE_FEATURES, LPNLayout, decode_lpn, end_effector_columns, foot_bones
 from jaxstyle.data.normalise import Normaliser
 from jaxstyle.data.pfnn_features import FUTURE_SAMPLES
 from jaxstyle.nn import style_models
@@ -261,14 +261,23 @@ class StyleNetModel:
     gate_columns: tuple | None = struct.field(pytree_node=False, default=None)
     blend_bias: float = struct.field(pytree_node=False, default=1.5)
     phase_floor: float = struct.field(pytree_node=False, default=PHASE_FLOOR)
+    foot_smooth: tuple | None = struct.field(pytree_node=False, default=None)
 
     @classmethod
     def create(cls, params: dict, config: StyleModelConfig, normalisers: tuple[Normaliser, Normaliser],
-               skeleton=None, *, blend_bias: float = 1.5, phase_floor: float = PHASE_FLOOR
-               ) -> StyleNetModel:
+               skeleton=None, *, blend_bias: float = 1.5, phase_floor: float = PHASE_FLOOR,
+               foot_smooth: float | None = None) -> StyleNetModel:
         """The model of a trained ``params``/``config`` with its training data's (input, output)
         :class:`Normaliser` s (or ``(mean, std)`` pairs); ``skeleton``, a clip of the training
-        skeleton, gives the MANN backbone's gating columns (the other backbones need none)."""
+        skeleton, gives the MANN backbone's gating columns (the other backbones need none) and
+        the feet of ``foot_smooth``.
+
+        ``foot_smooth`` (not in the paper; ``None``: the paper's runtime): the ankles' and toes'
+        own weight ``s`` of the predicted positions in the carried ``s P + (1 - s)(p + V)``
+        (:func:`advance`; the other joints keep :data:`jaxstyle.control.loop.JOINT_SMOOTH`). Why:
+        given the captured frame, the velocity head predicts a planted foot's motion far better
+        than the position head (docs/mason2022.md, "Feet that slide"), so a low weight lets the
+        feet follow their predicted velocity; 0.1 lowered the raw skating in 16 of 18 runs there."""
         x_norm, y_norm = (normaliser_arrays(n) for n in normalisers)
         num_bones = (len(x_norm[0]) - 48) // 12
         if LPNLayout(num_bones).input_size != config.input_size:
@@ -276,8 +285,22 @@ class StyleNetModel:
         cols = end_effector_columns(skeleton) if config.backbone == "mann" and skeleton is not None else None
         if not phase_floor >= 0:
             raise ValueError(f"phase_floor must be a non-negative fraction of the capture's rate, got {phase_floor}")
+        feet = None
+        if foot_smooth is not None:
+            if skeleton is None or not 0.0 <= foot_smooth <= 1.0:
+                raise ValueError(f"foot_smooth must be in [0, 1] and needs the skeleton's feet, got {foot_smooth}")
+            feet = (float(foot_smooth), *foot_bones(skeleton)[0])
         return cls(params, x_norm, y_norm, config, int(num_bones), check_gate_columns(config, cols), float(blend_bias),
-                   float(phase_floor))
+                   float(phase_floor), feet)
+
+    def joint_smooth(self):
+        """The ``joint_smooth`` of :func:`advance`: :data:`jaxstyle.control.loop.JOINT_SMOOTH`, or
+        per bone ``(B, 1)`` with the feet's ``foot_smooth``."""
+        if self.foot_smooth is None:
+            return loop.JOINT_SMOOTH
+        s = np.full((self.num_bones, 1), loop.JOINT_SMOOTH, np.float32)
+        s[list(self.foot_smooth[1:5]), 0] = self.foot_smooth[0]
+        return s
 
     def step(self, style, state: LPNState, control) -> tuple[LPNState, LPNRollout]:
         """One frame: the LPN-layout input from the carried state, the network with ``style`` and
@@ -288,7 +311,7 @@ class StyleNetModel:
         gate = gate_input(self.config, state.phases[None], state.global_phase[None], x_n, self.gate_columns)
         y_n = style_models.model_apply(self.params, self.config, x_n, gate, style)[0]
         stand = control[2] if len(control) > 2 else 0.0
-        return advance(state, y_n * self.y_norm[1] + self.y_norm[0], self.num_bones, stand)
+        return advance(state, y_n * self.y_norm[1] + self.y_norm[0], self.num_bones, stand, self.joint_smooth())
 
     def phase_ratio(self, style, dataset, name: str) -> float:
         """The global-phase rate a character of ``style`` (runtime style) starts with: for Table

@@ -116,6 +116,19 @@ def bone_points(motion: Motion) -> tuple[np.ndarray, np.ndarray, list[str]]:
     return point_idx.astype(int), rot_idx.astype(int), names
 
 
+def foot_bones(skeleton: Motion) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The LPN bone indices of the ankles then the toes (found by name,
+    :func:`jaxstyle.motion.skeleton.find_feet_and_hands`), and each one's foot (0 left, 1 right)."""
+    names = bone_points(skeleton)[2]
+    found = find_feet_and_hands(skeleton.names, skeleton.source, skeleton.joint_map)
+    feet, side = [], []
+    for group in ("ankles", "toes"):
+        for s, name in enumerate(found[group]):  # (left, right)
+            feet.append(names.index(name))
+            side.append(s)
+    return tuple(feet), tuple(side)
+
+
 def bone_parents(motion: Motion) -> np.ndarray:
     """``(B,)`` parent of each LPN bone in the bone order of :func:`bone_points` (-1 for the root;
     a hand end site's parent is its wrist): the bones of the 2022 bone-length loss (Eq. 6)."""

@@ -17,10 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxstyle.data.datasets import consecutive_rows
-from jaxstyle.data.lpn_features import LPNLayout, bone_parents, bone_points, end_effector_columns
+from jaxstyle.data.lpn_features import LPNLayout, bone_parents, end_effector_columns, foot_bones
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
-from jaxstyle.motion.skeleton import find_feet_and_hands
 
 
 class FootContacts(NamedTuple):
@@ -153,19 +152,6 @@ def style_data(dataset, skeleton: Motion, *, backbone: str = "lpn", styles: Sequ
                      tuple(dataset.rows_of_style(s, "validation") for s in styles),
                      tuple(dataset.rows_of_style(s, "test") for s in styles), train_clips, styles, bones,
                      next_rows(dataset.clip, dataset.frame), stats)
-
-
-def foot_bones(skeleton: Motion) -> tuple[tuple[int, ...], tuple[int, ...]]:
-    """The LPN bone indices of the ankles then the toes (found by name,
-    :func:`jaxstyle.motion.skeleton.find_feet_and_hands`), and each one's foot (0 left, 1 right)."""
-    names = bone_points(skeleton)[2]
-    found = find_feet_and_hands(skeleton.names, skeleton.source, skeleton.joint_map)
-    feet, side = [], []
-    for group in ("ankles", "toes"):
-        for s, name in enumerate(found[group]):  # (left, right)
-            feet.append(names.index(name))
-            side.append(s)
-    return tuple(feet), tuple(side)
 
 
 def foot_contacts(skeleton: Motion, layout: LPNLayout, normalisers, units_per_meter: float) -> FootContacts:

@@ -67,16 +67,19 @@ class Loaded(NamedTuple):
     directory: Path
     epochs: int
     phase_floor: float = PHASE_FLOOR
+    foot_smooth: float | None = None
 
     def character_model(self, *, blend_bias: float = 1.5) -> StyleNetModel:
         """The model as a :class:`jaxstyle.control.model.CharacterModel`
         (:class:`jaxstyle.control.lpn_controller.StyleNetModel`: a character's conditioning is its
         runtime style), normalised with its training data's statistics, its local phases floored
         at ``phase_floor`` times each style's capture rate
-        (:func:`jaxstyle.control.lpn_phases.floored_phases`; 0: the paper's runtime)."""
+        (:func:`jaxstyle.control.lpn_phases.floored_phases`; 0: the paper's runtime), its feet's
+        ``foot_smooth`` (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`; ``None``:
+        the paper's runtime)."""
         m = self.model
         return StyleNetModel.create(m.params, m.config, self.data.base.normalisers(), self.data.skeleton,
-                                    blend_bias=blend_bias, phase_floor=self.phase_floor)
+                                    blend_bias=blend_bias, phase_floor=self.phase_floor, foot_smooth=self.foot_smooth)
 
 
 def _dataclass(cls, values: dict):
