@@ -61,6 +61,7 @@ from jaxstyle.data.lpn_features import LPNLayout, bone_points, foot_bones
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.mason2022 import pipeline, report
 from jaxstyle.mason2022 import synthesis as synthesis2022
+from jaxstyle.motion.character_frame import rotate_yaw
 from jaxstyle.output import drive, quality
 from jaxstyle.output import report as quality_report
 from jaxstyle.train.defaults import PHASE_FLOOR
@@ -83,15 +84,21 @@ def pose_motion_m(positions_TxJx3: np.ndarray, yaw_T: np.ndarray, origin_Tx2: np
     return float(local.std(axis=0).mean() / upm)
 
 
+def _planted_steps(contacts_Tx2: np.ndarray, side, start: int) -> np.ndarray:
+    """``(T - start - 1, F)``: the frame steps from ``start`` on where each foot joint's contact
+    label (``side``: its foot, 0 left, 1 right) is on (``>= 0.5``) at both ends."""
+    on = np.asarray(contacts_Tx2)[start:, list(side)] >= 0.5
+    return on[1:] & on[:-1]
+
+
 def planted_speed(positions_TxJx3: np.ndarray, contacts_Tx2: np.ndarray, skeleton, upm: float, start: int) -> float:
     """Mean horizontal speed (m/s) of the ankles and toes from frame ``start`` on over the frame
     steps where their foot's contact label (the network's own output, ``>= 0.5``) is on at both
     ends (:func:`jaxstyle.data.lpn_features.foot_bones`; NaN when never on)."""
-    feet, side = (list(a) for a in foot_bones(skeleton))
-    p = positions_TxJx3[start:, feet][..., [0, 2]]
-    on = np.asarray(contacts_Tx2)[start:, side] >= 0.5
+    feet, side = foot_bones(skeleton)
+    p = positions_TxJx3[start:, list(feet)][..., [0, 2]]
     speed = np.linalg.norm(np.diff(p, axis=0), axis=-1) * skeleton.fps / upm
-    both = on[1:] & on[:-1]
+    both = _planted_steps(contacts_Tx2, side, start)
     return float(speed[both].mean()) if both.any() else float("nan")
 
 
@@ -103,20 +110,16 @@ def stance_sweep(positions_TxJx3: np.ndarray, contacts_Tx2: np.ndarray, origin_T
     travel (backwards positive), divided by the mean root speed over the same steps (the root's
     turn within a frame ignored). 1 for a foot that stays put while the root walks on; below 1,
     the leg sweeps too slowly for the root and the foot slides forwards. NaN when never on."""
-    feet, side = (list(a) for a in foot_bones(skeleton))
-    p, o, yaw = positions_TxJx3[start:, feet], origin_Tx2[start:], yaw_T[start:]
-    on = np.asarray(contacts_Tx2)[start:, side] >= 0.5
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    rx, rz = p[..., 0] - o[:, None, 0], p[..., 2] - o[:, None, 1]
-    local = np.stack([c * rx - s * rz, s * rx + c * rz], axis=-1)  # rotate_xz by -yaw: the root frame
+    feet, side = foot_bones(skeleton)
+    p, yaw = positions_TxJx3[start:, list(feet)], yaw_T[start:]
+    o = np.stack([origin_Tx2[start:, 0], np.zeros(len(yaw)), origin_Tx2[start:, 1]], axis=-1)
+    local = rotate_yaw(p - o[:, None], -yaw[:, None])[..., [0, 2]]  # in the root's ground frame
     step_local = np.diff(local, axis=0)  # (T-1, F, 2)
-    root = np.diff(o, axis=0)
-    root_local = np.stack([c[:-1, 0] * root[:, 0] - s[:-1, 0] * root[:, 1],
-                           s[:-1, 0] * root[:, 0] + c[:-1, 0] * root[:, 1]], axis=-1)
+    root_local = rotate_yaw(np.diff(o, axis=0), -yaw[:-1])[:, [0, 2]]
     speed = np.linalg.norm(root_local, axis=-1)
     ahead = root_local / np.maximum(speed, 1e-9)[:, None]
     back = -np.sum(step_local * ahead[:, None], axis=-1)
-    both = on[1:] & on[:-1]
+    both = _planted_steps(contacts_Tx2, side, start)
     if not both.any():
         return float("nan")
     return float(back[both].mean() / np.broadcast_to(speed[:, None], both.shape)[both].mean())
@@ -134,63 +137,49 @@ def capture_planted_speed(dataset, name: str, skeleton, upm: float) -> float:
     return float(np.linalg.norm(v, axis=-1)[on].mean() * skeleton.fps / upm)
 
 
-def teacher_forced_contact(model: pipeline.Model) -> tuple[float, float]:
-    """The teacher-forced :func:`jaxstyle.mason2022.loss.contact_loss` (metres per frame) of
-    ``model`` on its test rows (mean over styles, dropout off, a FiLM model with each style's FiLM
-    vector), and the capture's (the captured next frame in place of the prediction)."""
-    from jaxstyle.mason2022.loss import contact_loss
-    from jaxstyle.mason2022.train import film_vectors
-    from jaxstyle.nn import style_models
-
-    data, config, params = model.data, model.config, model.params
-    vectors = film_vectors(params, data) if config.modulation == "film" else None
-    got, capture = [], []
-    for s, rows in enumerate(data.test_rows):
-        style = vectors[s] if vectors is not None else style_models.style_runtime(params, config, s)
-        pred = style_models.model_apply(params, config, data.x[rows], data.gate[rows], style)
-        got.append(float(contact_loss(data.x[rows], pred, data.y[rows], data.bones)))
-        capture.append(float(contact_loss(data.x[rows], data.y[rows], data.y[rows], data.bones)))
-    return float(np.mean(got)), float(np.mean(capture))
-
-
-def teacher_forced_heads(model: pipeline.Model) -> tuple[float, float, float]:
-    """How far each head moves a planted foot, teacher-forced on the test rows: the mean over
-    the ankles and toes of the rows whose captured next frame has their foot's contact label on
-    (all styles' test rows together, dropout off) of the horizontal distance from the input
-    position to the predicted one (the position head) and of the predicted velocity (the
-    velocity head), and of the captured velocity (the capture), in m/s (rows at 60 fps)."""
-    from jaxstyle.mason2022.loss import _group
+def teacher_forced(model: pipeline.Model) -> dict[str, float]:
+    """``model`` teacher-forced on its test rows (dropout off, a FiLM model with each style's FiLM
+    vector), one prediction per style: ``contact`` / ``contact_capture``, the mean over styles of
+    :func:`jaxstyle.mason2022.loss.contact_loss` (metres per frame) of the prediction and of the
+    captured next frame in its place; ``position_head`` / ``velocity_head`` / ``capture``, how far
+    each head moves a planted foot: the mean over the ankles and toes of the rows whose captured
+    next frame has their foot's contact label on (all styles' rows together) of the horizontal
+    distance from the input position to the predicted one, of the predicted velocity, and of the
+    captured velocity, in m/s (rows at 60 fps)."""
+    from jaxstyle.mason2022.loss import _group, contact_loss, positions_m
     from jaxstyle.mason2022.train import film_vectors
     from jaxstyle.nn import style_models
 
     data, config, params, c = model.data, model.config, model.params, model.data.bones.contact
     vectors = film_vectors(params, data) if config.modulation == "film" else None
-    feet, side = list(c.feet), list(c.side)
-    sums = np.zeros(3)
-    count = 0
+    feet, side, n = list(c.feet), list(c.side), len(c.x_position[1]) // 3
+    contact, capture, sums, count = [], [], np.zeros(3), 0
+
+    def ground(v_BxD):  # the feet's horizontal (x, z) of flat (B, 3 J) joint vectors
+        return np.asarray(v_BxD).reshape(len(v_BxD), n, 3)[:, feet][..., [0, 2]]
+
     for s, rows in enumerate(data.test_rows):
+        x, y = data.x[rows], data.y[rows]
         style = vectors[s] if vectors is not None else style_models.style_runtime(params, config, s)
-        pred = np.asarray(style_models.model_apply(params, config, data.x[rows], data.gate[rows], style))
-        n = len(c.x_position[1]) // 3
-        p = np.asarray(_group(data.x[rows], c.x_position)).reshape(len(rows), n, 3)[:, feet][..., [0, 2]]
-        big_p = np.asarray(_group(pred, (data.bones.start, data.bones.scale, data.bones.offset)))
-        big_p = big_p.reshape(len(rows), n, 3)[:, feet][..., [0, 2]]
-        v = np.asarray(_group(pred, c.y_velocity)).reshape(len(rows), n, 3)[:, feet][..., [0, 2]]
-        v_cap = np.asarray(_group(data.y[rows], c.y_velocity)).reshape(len(rows), n, 3)[:, feet][..., [0, 2]]
-        on = np.asarray(_group(data.y[rows], c.y_contact))[:, side] >= 0.5
-        sums += [np.linalg.norm(a, axis=-1)[on].sum() for a in (big_p - p, v, v_cap)]
+        pred = style_models.model_apply(params, config, x, data.gate[rows], style)
+        contact.append(float(contact_loss(x, pred, y, data.bones)))
+        capture.append(float(contact_loss(x, y, y, data.bones)))
+        moved = ground(positions_m(pred, data.bones)) - ground(_group(x, c.x_position))
+        on = np.asarray(_group(y, c.y_contact))[:, side] >= 0.5
+        sums += [np.linalg.norm(a, axis=-1)[on].sum()
+                 for a in (moved, ground(_group(pred, c.y_velocity)), ground(_group(y, c.y_velocity)))]
         count += on.sum()
-    return tuple(float(x) for x in sums / max(count, 1) * 60.0)
+    pos, vel, cap = sums / max(count, 1) * 60.0
+    return {"contact": float(np.mean(contact)), "contact_capture": float(np.mean(capture)),
+            "position_head": float(pos), "velocity_head": float(vel), "capture": float(cap)}
 
 
 def model_line(model: pipeline.Model) -> str:
-    """The test MSE, the teacher-forced contact loss (:func:`teacher_forced_contact`) and the two
-    heads' planted feet (:func:`teacher_forced_heads`)."""
-    contact, capture = teacher_forced_contact(model)
-    pos, vel, cap = teacher_forced_heads(model)
-    return (f"test MSE {np.mean(pipeline.model_losses(model)['mse']):.4f}, test contact loss {contact:.4f} m/frame "
-            f"(capture {capture:.4f}), planted feet teacher-forced: position head {pos:.2f} m/s, velocity head "
-            f"{vel:.2f} m/s (capture {cap:.2f})")
+    """The test MSE and the teacher-forced figures of :func:`teacher_forced`."""
+    t = teacher_forced(model)
+    return (f"test MSE {np.mean(pipeline.model_losses(model)['mse']):.4f}, test contact loss {t['contact']:.4f} "
+            f"m/frame (capture {t['contact_capture']:.4f}), planted feet teacher-forced: position head "
+            f"{t['position_head']:.2f} m/s, velocity head {t['velocity_head']:.2f} m/s (capture {t['capture']:.2f})")
 
 
 def runtime_name(floor: float) -> str:

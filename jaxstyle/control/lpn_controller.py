@@ -251,9 +251,9 @@ class StyleNetModel:
     training data's ``(mean, std)`` as float32 arrays (:meth:`create`). A character's style
     conditioning is its runtime style: a precomputed FiLM vector ``(4 H,)``, a one-hot row or an
     adapter (what :func:`jaxstyle.nn.style_models.model_apply` takes). ``gate_columns``: the MANN
-    backbone's gating columns of the normalised input. ``foot_smooth``: ``None`` (every joint
-    :data:`jaxstyle.control.loop.JOINT_SMOOTH`) or ``(s, *foot bones)``, the feet's own blend
-    weight (:meth:`create`, :meth:`joint_smooth`)."""
+    backbone's gating columns of the normalised input. ``bone_smooth``: ``None`` (every bone
+    :data:`jaxstyle.control.loop.JOINT_SMOOTH`) or each bone's blend weight (:meth:`create`'s
+    ``foot_smooth`` on the feet, :meth:`joint_smooth`)."""
 
     params: dict
     x_norm: tuple
@@ -263,7 +263,7 @@ class StyleNetModel:
     gate_columns: tuple | None = struct.field(pytree_node=False, default=None)
     blend_bias: float = struct.field(pytree_node=False, default=1.5)
     phase_floor: float = struct.field(pytree_node=False, default=PHASE_FLOOR)
-    foot_smooth: tuple | None = struct.field(pytree_node=False, default=None)
+    bone_smooth: tuple[float, ...] | None = struct.field(pytree_node=False, default=None)
 
     @classmethod
     def create(cls, params: dict, config: StyleModelConfig, normalisers: tuple[Normaliser, Normaliser],
@@ -288,22 +288,21 @@ class StyleNetModel:
         cols = end_effector_columns(skeleton) if config.backbone == "mann" and skeleton is not None else None
         if not phase_floor >= 0:
             raise ValueError(f"phase_floor must be a non-negative fraction of the capture's rate, got {phase_floor}")
-        feet = None
+        bone_smooth = None
         if foot_smooth is not None:
             if skeleton is None or not 0.0 <= foot_smooth <= 1.0:
                 raise ValueError(f"foot_smooth must be in [0, 1] and needs the skeleton's feet, got {foot_smooth}")
-            feet = (float(foot_smooth), *foot_bones(skeleton)[0])
+            feet = set(foot_bones(skeleton)[0])
+            bone_smooth = tuple(float(foot_smooth) if b in feet else loop.JOINT_SMOOTH for b in range(num_bones))
         return cls(params, x_norm, y_norm, config, int(num_bones), check_gate_columns(config, cols), float(blend_bias),
-                   float(phase_floor), feet)
+                   float(phase_floor), bone_smooth)
 
     def joint_smooth(self):
         """The ``joint_smooth`` of :func:`advance`: :data:`jaxstyle.control.loop.JOINT_SMOOTH`, or
-        per bone ``(B, 1)`` with the feet's ``foot_smooth``."""
-        if self.foot_smooth is None:
+        ``bone_smooth`` as a ``(B, 1)`` array."""
+        if self.bone_smooth is None:
             return loop.JOINT_SMOOTH
-        s = np.full((self.num_bones, 1), loop.JOINT_SMOOTH, np.float32)
-        s[list(self.foot_smooth[1:5]), 0] = self.foot_smooth[0]
-        return s
+        return np.asarray(self.bone_smooth, np.float32)[:, None]
 
     def step(self, style, state: LPNState, control) -> tuple[LPNState, LPNRollout]:
         """One frame: the LPN-layout input from the carried state, the network with ``style`` and
