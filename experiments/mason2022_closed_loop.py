@@ -22,8 +22,9 @@ Protocol (fixed):
    reused on a re-run.
 3. Runtime: every training style along ``straight`` and ``circle`` (10 s at its own speed, the
    path-following law of the quality benchmark), with the paper's runtime (``--phase-floor 0``)
-   and with the default one (local phases floored at
-   :data:`jaxstyle.train.defaults.PHASE_FLOOR` of the style's capture rate).
+   and with the local phases floored at :data:`jaxstyle.train.defaults.PHASE_FLOOR` of the style's
+   capture rate (the default floor); both with the paper's joint blend on the feet unless
+   ``--foot-smooth S`` (the commands' default is :data:`jaxstyle.train.defaults.FOOT_SMOOTH`).
 4. Measures (:func:`jaxstyle.output.quality.run`, the quality benchmark's): the local phases'
    advance over the capture's (``phase_rate_ratio``, stalled below
    :data:`jaxstyle.output.quality.STALL_RATIO`), steps per second after foot locking, raw foot

@@ -30,7 +30,9 @@ as in the paper (which timed its own C# runtime on its own CPU). No motion captu
 4. Closed loop: every training style along ``straight`` and ``circle`` for 10 s at its own speed
    (:func:`jaxstyle.mason2022.synthesis.measure_quality`, the quality benchmark's protocol) with
    each runtime of ``--phase-floors`` (0: the paper's; the default floor,
-   :data:`jaxstyle.train.defaults.PHASE_FLOOR`), summarised per model
+   :data:`jaxstyle.train.defaults.PHASE_FLOOR`), the feet blended as every joint (the paper's runtime;
+   ``--foot-smooth S``: the feet's own weight, the commands' default being
+   :data:`jaxstyle.train.defaults.FOOT_SMOOTH`), summarised per model
    (:func:`jaxstyle.mason2022.report.closed_loop_figures`) with the verdicts of
    :func:`jaxstyle.mason2022.report.closed_loop_ordering_lines`.
 
@@ -128,7 +130,7 @@ def train(args) -> None:
         mine = []
         for name, run in done.runs.items():
             loaded = synthesis2022.Loaded(run.model, data, pipeline.model_folder(args.out, name), run.epochs,
-                                          floor)
+                                          floor, args.foot_smooth)
             mine += [{**r, "phase_floor": floor} for r in
                      synthesis2022.measure_quality(loaded, styles, path_names=PATHS, seconds=SECONDS).rows]
         figures = report.closed_loop_figures(mine)
@@ -160,6 +162,9 @@ def main() -> None:
     t.add_argument("--filters", type=int, default=32)
     t.add_argument("--learning-rate", type=float, default=1e-3)
     t.add_argument("--phase-floors", type=float, nargs="+", default=[0.0, PHASE_FLOOR])
+    t.add_argument("--foot-smooth", type=float, default=None,
+                   help="the feet's weight of the predicted positions in the runtime's joint blend (default: the "
+                        "other joints' 0.5, the paper's runtime; the commands' default is FOOT_SMOOTH)")
     t.add_argument("--data", type=Path, help="a style folder (default: $JAXSTYLE_MOCAP/100style)")
     t.add_argument("--styles", type=names,
                    help="comma-separated training styles (default: the paper's base styles of the sample)")

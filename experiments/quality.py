@@ -2,6 +2,7 @@
 feet planted as well as the capture it learnt from?
 
     python experiments/quality.py [--small] [--run runs/quality] [--no-contacts] [--lpn runs/mason2022]
+        [--foot-smooth S]
 
 Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output):
 
@@ -37,8 +38,9 @@ Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output)
    controller along the same paths, at the same speeds rule, with the same path-following law,
    and measured by the same function beside the same captures
    (:func:`jaxstyle.output.quality.run` with the model's
-   :class:`jaxstyle.control.lpn_controller.StyleNetModel`); a model the controller cannot drive is skipped
-   with one line saying why. Rows carry a ``model`` column.
+   :class:`jaxstyle.control.lpn_controller.StyleNetModel`, its phase floor the default and its feet's
+   blend ``--foot-smooth``, default :data:`jaxstyle.train.defaults.FOOT_SMOOTH`); a model the
+   controller cannot drive is skipped with one line saying why. Rows carry a ``model`` column.
 
 Writes to ``--run``: ``quality.csv``, ``quality.md`` (the table, the targets, the diagnosis),
 ``quality.png`` (bars: generated vs capture), ``contact_sheet.png``. Trained models are kept in
@@ -59,6 +61,7 @@ from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, P
 from jaxstyle.mason2018 import base_model, pipeline, sweep_files
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import diagnose, preview, quality, report
+from jaxstyle.train.defaults import FOOT_SMOOTH
 
 
 def model_dirs(folder: Path) -> list[Path]:
@@ -69,8 +72,9 @@ def model_dirs(folder: Path) -> list[Path]:
     return sorted(d for d in folder.iterdir() if (d / "config.json").is_file()) if folder.is_dir() else []
 
 
-def lpn_rows(folder: Path, cache: Path, seconds: float) -> list[dict]:
-    """Step 7 of the protocol: the quality rows of every 2022 model in ``folder``."""
+def lpn_rows(folder: Path, cache: Path, seconds: float, foot_smooth: float | None = FOOT_SMOOTH) -> list[dict]:
+    """Step 7 of the protocol: the quality rows of every 2022 model in ``folder``, its feet's runtime
+    blend ``foot_smooth`` (0.5: the paper's, :class:`jaxstyle.mason2022.synthesis.Loaded`)."""
     dirs = model_dirs(folder)
     if not dirs:
         print(f"2022 models: none in {folder} (train them with experiments/mason2022_table2.py or "
@@ -80,7 +84,7 @@ def lpn_rows(folder: Path, cache: Path, seconds: float) -> list[dict]:
     for d in dirs:
         t0 = time.perf_counter()
         try:
-            loaded = synthesis2022.load_model(d, cache=cache)
+            loaded = synthesis2022.load_model(d, cache=cache)._replace(foot_smooth=foot_smooth)
             model = loaded.model
             chosen = d / "chosen_rates.json"
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
@@ -106,6 +110,9 @@ def main() -> None:
     parser.add_argument("--lpn-cache", type=Path, default=Path("runs/cache"),
                         help="the 2022 models' LPN row cache (default runs/cache, experiments/mason2022_styles.py's)")
     parser.add_argument("--no-lpn", action="store_true", help="measure the 2018 models only")
+    parser.add_argument("--foot-smooth", type=float, default=FOOT_SMOOTH, metavar="S",
+                        help="2022 models: the feet's weight of their predicted positions in the runtime's joint blend "
+                             "(default %(default)s, the commands'; 0.5, like every joint, is the paper's runtime)")
     a = parser.parse_args()
     run = a.run or Path("runs/quality_small" if a.small else "runs/quality")
     run.mkdir(parents=True, exist_ok=True)
@@ -145,7 +152,7 @@ def main() -> None:
     rows, drawn = quality.run(base.character_model(), subjects, base.skeleton, seconds=a.seconds)
     t_measure = time.perf_counter() - t1
     t1 = time.perf_counter()
-    rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds)
+    rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds, a.foot_smooth)
     t_lpn = time.perf_counter() - t1
     checks = report.targets(rows)
     diag = [diagnose.diagnose(base.params, base.normalisers, s, base.skeleton)

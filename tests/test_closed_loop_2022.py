@@ -353,13 +353,18 @@ def test_lpn_command_passes_the_training_options_outside_the_paper():
 
 
 def test_foot_smooth_flag_is_a_fraction():
-    """`jaxstyle synthesize` and `demo` take --foot-smooth in [0, 1] (default None: the paper's
-    runtime) and refuse anything else with argparse's one line."""
+    """`jaxstyle synthesize` and `demo` take --foot-smooth in [0, 1] (default the library's
+    FOOT_SMOOTH, as a reloaded model's) and refuse anything else with argparse's one line."""
+    from jaxstyle.cli.args import resolve_defaults
     from jaxstyle.cli.main import build_parser
+    from jaxstyle.mason2022.synthesis import Loaded
+    from jaxstyle.train.defaults import FOOT_SMOOTH
 
     parser, _ = build_parser()
     for command in (["synthesize"], ["demo"]):
-        assert parser.parse_args(command).foot_smooth is None
+        args = parser.parse_args(command)
+        resolve_defaults(args)
+        assert args.foot_smooth == FOOT_SMOOTH == Loaded._field_defaults["foot_smooth"]
         assert parser.parse_args([*command, "--foot-smooth", "0.1"]).foot_smooth == 0.1
         for bad in ("1.5", "-0.1", "nan"):
             with pytest.raises(SystemExit):

@@ -39,6 +39,7 @@ from jaxstyle.play import learn, models, session
 from jaxstyle.play.frame import Steering, control_row, control_rows
 from jaxstyle.play.models import PlayError
 from jaxstyle.play.scene import bone_transforms, ground_point
+from jaxstyle.train.defaults import FOOT_SMOOTH
 from tests import test_synthesis_lpn
 
 STYLES = ("Neutral", "Crouched")
@@ -462,7 +463,8 @@ def test_lpn_session_steps_like_the_controllers_step_and_switches_styles_without
     s = session.Session(lpn_model, style="Neutral", foot_lock=False)
     s.add_character("Crouched")
     s.walk_to(2.0, 4.0)
-    single = step_fn(StyleNetModel.create(m.params, m.config, lpn_model.loaded.data.base.normalisers()), None)
+    single = step_fn(StyleNetModel.create(m.params, m.config, lpn_model.loaded.data.base.normalisers(),
+                                          lpn_model.loaded.data.skeleton, foot_smooth=FOOT_SMOOTH), None)
     states = [jax.tree.map(lambda v, i=i: v[i], s._states) for i in range(2)]
     vectors = {n: np.asarray(st.conditioning) for n, st in lpn_model.styles.items()}
     compiled = None
@@ -562,7 +564,8 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
     np.testing.assert_allclose(s._states.phase_ratio, [want["Neutral"], want["Crouched"]], rtol=1e-6)
     s.set_style("Crouched", 0)
     s.set_blend(["Neutral", "Crouched"], [1.0, 3.0], 1)
-    single = step_fn(StyleNetModel.create(model.params, config, (x_norm, y_norm)), None)
+    single = step_fn(StyleNetModel.create(model.params, config, (x_norm, y_norm), data.skeleton,
+                                          foot_smooth=FOOT_SMOOTH), None)
     controls = s.controls()
     before = jax.tree.map(lambda v: v[1], s._states)
     frame = s.step()

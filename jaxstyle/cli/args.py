@@ -61,6 +61,9 @@ LEARN_EPOCHS = LazyDefault("jaxstyle.train.defaults", "LEARN_EPOCHS")
 PHASE_FLOOR = LazyDefault("jaxstyle.train.defaults", "PHASE_FLOOR")
 """The 2022 runtime's floor on the local phases' advance (the library's default)."""
 
+FOOT_SMOOTH = LazyDefault("jaxstyle.train.defaults", "FOOT_SMOOTH")
+"""The 2022 runtime's weight of the feet's predicted positions (the library's default)."""
+
 
 def add_common(parser: argparse.ArgumentParser, run_default: Path | None = DEFAULT_RUN) -> None:
     if run_default is not None:
@@ -148,10 +151,10 @@ def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds:
     p.add_argument("--phase-floor", type=non_negative, default=PHASE_FLOOR, metavar="F",
                    help="2022 models: each limb's local phase advances at least F times its style's capture rate "
                         "per frame (0: the paper's runtime, whose closed loop can stall)")
-    p.add_argument("--foot-smooth", type=fraction, default=None, metavar="S",
+    p.add_argument("--foot-smooth", type=fraction, default=FOOT_SMOOTH, metavar="S",
                    help="2022 models: the feet carry S of their predicted positions and 1 - S of their positions "
-                        "moved on by their predicted velocities (default: 0.5 like every joint, the paper's runtime; "
-                        "0.1 slides less, docs/mason2022.md 'Feet that slide')")
+                        "moved on by their predicted velocities (default %(default)s, which slides less; 0.5, like "
+                        "every other joint, is the paper's runtime; docs/mason2022.md 'Feet that slide')")
 
 
 def finite(text: str) -> float:

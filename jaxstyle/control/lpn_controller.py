@@ -274,13 +274,14 @@ class StyleNetModel:
         skeleton, gives the MANN backbone's gating columns (the other backbones need none) and
         the feet of ``foot_smooth``.
 
-        ``foot_smooth`` (not in the paper; ``None``: the paper's runtime): the ankles' and toes'
-        own weight ``s`` of the predicted positions in the carried ``s P + (1 - s)(p + V)``
+        ``foot_smooth`` (not in the paper; ``None``: the paper's runtime, here as in a model built
+        without a skeleton; the reloaded models of :class:`jaxstyle.mason2022.synthesis.Loaded` and
+        the commands use :data:`jaxstyle.train.defaults.FOOT_SMOOTH`): the ankles' and toes' own
+        weight ``s`` of the predicted positions in the carried ``s P + (1 - s)(p + V)``
         (:func:`advance`; the other joints keep :data:`jaxstyle.control.loop.JOINT_SMOOTH`). Why:
         given the captured frame, the velocity head predicts a planted foot's motion far better
         than the position head (docs/mason2022.md, "Feet that slide"), so a low weight lets the
-        feet follow their predicted velocity; 0.1 lowered the raw skating in 16 of 18 demo-size runs
-        there, and at the paper's size from 4.1x to 2.6x the captures'."""
+        feet follow their predicted velocity."""
         x_norm, y_norm = (normaliser_arrays(n) for n in normalisers)
         num_bones = (len(x_norm[0]) - 48) // 12
         if LPNLayout(num_bones).input_size != config.input_size:

@@ -46,7 +46,7 @@ from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import drive
 from jaxstyle.output.check import FAILED_MARK, failed_check, refusal
 from jaxstyle.output.drive import Character
-from jaxstyle.train.defaults import PHASE_FLOOR
+from jaxstyle.train.defaults import FOOT_SMOOTH, PHASE_FLOOR
 
 MODELS = {"lpn-film": "LPN FiLM", "lpn-onehot": "LPN One-hot", "lpn-resad": "LPN Resad", "mann-film": "MANN FiLM",
           "pfnn-film": "PFNN FiLM", "pfnn-onehot": "PFNN One-hot", "pfnn-resad": "PFNN Resad"}
@@ -67,7 +67,7 @@ class Loaded(NamedTuple):
     directory: Path
     epochs: int
     phase_floor: float = PHASE_FLOOR
-    foot_smooth: float | None = None
+    foot_smooth: float | None = FOOT_SMOOTH
 
     def character_model(self, *, blend_bias: float = 1.5) -> StyleNetModel:
         """The model as a :class:`jaxstyle.control.model.CharacterModel`
@@ -75,8 +75,8 @@ class Loaded(NamedTuple):
         runtime style), normalised with its training data's statistics, its local phases floored
         at ``phase_floor`` times each style's capture rate
         (:func:`jaxstyle.control.lpn_phases.floored_phases`; 0: the paper's runtime), its feet's
-        ``foot_smooth`` (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`; ``None``:
-        the paper's runtime)."""
+        ``foot_smooth`` (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`; default
+        :data:`jaxstyle.train.defaults.FOOT_SMOOTH`; 0.5 or ``None``: the paper's runtime)."""
         m = self.model
         return StyleNetModel.create(m.params, m.config, self.data.base.normalisers(), self.data.skeleton,
                                     blend_bias=blend_bias, phase_floor=self.phase_floor, foot_smooth=self.foot_smooth)

@@ -26,6 +26,18 @@ should keep; measured on the demo's 100STYLE styles against 0.5 (docs/mason2022.
 why it froze"), so the phase rate of a character run with it is not independent evidence
 that it steps: its steps per second, skating and style distance are."""
 
+FOOT_SMOOTH = 0.1
+"""The 2022 runtime's default weight of the ankles' and toes' predicted positions in the blend
+``s P + (1 - s)(p + V)`` it carries each frame (the other joints keep
+:data:`jaxstyle.control.loop.JOINT_SMOOTH`, 0.5; 0.5 on the feet is the paper's runtime;
+:meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`). Not in the paper: teacher-forced,
+the network's velocity head moves a planted foot about 0.3 m/s and its position head about 2.4 m/s
+(capture 0.09), so the feet follow their velocities. Chosen among 0, 0.05, 0.1, 0.2 and 0.5 on three
+demo-size models (8 epochs, seeds 0-2) by their summed median raw skating (0.1 and 0.2 lowest,
+0 makes the feet float), then checked on models it was not chosen on: the 4- and 16-epoch ones
+of the same protocol and the paper-size model, on the quality benchmark's protocol too
+(docs/mason2022.md, "Feet that slide")."""
+
 
 @dataclasses.dataclass(frozen=True)
 class RolloutCheck:
