@@ -33,7 +33,9 @@ Protocol (fixed):
    root's frame, after the first second, in metres); how fast the feet move while the network
    itself says they are planted (``planted_speed_m_s``, :func:`planted_speed`: the horizontal
    speed of the ankles and toes while their foot's predicted contact label is on, after the first
-   second; the capture's from its rows' velocities and contact labels) beside the root's speed.
+   second; the capture's from its rows' velocities and contact labels) beside the root's speed;
+   the feet's local-phase amplitude over the capture's (``foot_amplitude``,
+   :func:`foot_amplitude_ratio`).
 
 ``--model DIR`` (repeatable) measures already trained models instead (e.g. the paper-size
 ``RUN/lpn`` of ``jaxstyle lpn``, reloaded with :func:`jaxstyle.mason2022.synthesis.load_model`, its
@@ -126,6 +128,19 @@ def stance_sweep(positions_TxJx3: np.ndarray, contacts_Tx2: np.ndarray, origin_T
     return float(back[both].mean() / np.broadcast_to(speed[:, None], both.shape)[both].mean())
 
 
+def foot_amplitude_ratio(phases_Tx8: np.ndarray, dataset, name: str, start: int) -> float:
+    """The median amplitude of the feet's local phases (limbs 2 and 3: right and left foot, each a
+    ``(sin, cos)`` pair scaled by its amplitude) over frames ``start:`` over the median of style
+    ``name``'s captured rows: below 1 the gating sees the feet's phases smaller than in the
+    capture, and a limb whose amplitude falls to 0 no longer cycles the experts whatever its
+    phase's advance."""
+    def feet(p):
+        return np.linalg.norm(np.asarray(p, np.float64).reshape(len(p), 4, 2)[:, 2:], axis=-1)
+
+    capture = float(np.median(feet(dataset.phases[style_rows(dataset, name)])))
+    return float(np.median(feet(phases_Tx8[start:])) / capture) if capture > 0 else float("nan")
+
+
 def capture_planted_speed(dataset, name: str, skeleton, upm: float) -> float:
     """:func:`planted_speed` of style ``name``'s capture: the ankles' and toes' horizontal
     velocities in its rows (:func:`jaxstyle.data.datasets.style_rows`) where the next frame's
@@ -210,6 +225,7 @@ def measure(loaded: synthesis2022.Loaded, styles, recipe: str, new_styles=(), bl
         r["root_speed_m_s"] = float(np.linalg.norm(np.diff(out.origin[k][start:], axis=0), axis=-1).mean()
                                     * skeleton.fps / upm)
         r["stance_sweep"] = stance_sweep(positions, out.contacts[k], out.origin[k], out.yaw[k], skeleton, start)
+        r["foot_amplitude"] = foot_amplitude_ratio(out.phases[k], chars[i].dataset, chars[i].style, start)
     for c, speed in zip(chars, driven.speeds, strict=True):
         r = next(r for r in rows if r["style"] == c.title and r["path"] == "capture")
         r["planted_speed_m_s"] = capture_planted_speed(c.dataset, c.style, skeleton, upm)
@@ -248,7 +264,7 @@ def summary(rows: list[dict]) -> list[str]:
 def row_table(rows: list[dict]) -> list[str]:
     lines = ["| recipe | runtime | style | path | phase rate / capture | pose motion m | steps/s (capture) | "
              "raw skating m/s (capture) | feet on floor (capture) | style distance m | planted-foot / root speed m/s "
-             "(capture) | stance sweep / root speed |", "|---|" * 1 + "---|" * 11]
+             "(capture) | stance sweep / root speed | feet's phase amplitude / capture |", "|---|" * 1 + "---|" * 12]
     captures = {(r["model"], r["style"]): r for r in rows if r["path"] == "capture"}
     for r in rows:
         if r["path"] == "capture":
@@ -262,7 +278,8 @@ def row_table(rows: list[dict]) -> list[str]:
                      f"{r['foot_skating_m_s']:.2f} ({cap['foot_skating_m_s']:.2f}) | {r['contact_fraction']:.2f} "
                      f"({cap['contact_fraction']:.2f}) | {r['style_distance']:.2f} | "
                      f"{r['planted_speed_m_s']:.2f} / {r['root_speed_m_s']:.2f} "
-                     f"({cap['planted_speed_m_s']:.2f} / {cap['root_speed_m_s']:.2f}) | {r['stance_sweep']:.2f} |")
+                     f"({cap['planted_speed_m_s']:.2f} / {cap['root_speed_m_s']:.2f}) | {r['stance_sweep']:.2f} | "
+                     f"{r['foot_amplitude']:.2f} |")
     return lines
 
 

@@ -215,7 +215,13 @@ def test_training_with_the_contact_loss_plants_the_feet_it_is_taught(real, tmp_p
 def test_planted_speed_reads_the_networks_own_contact_labels(real):
     """The closed-loop experiment's planted-foot speed: the feet's horizontal speed over the frame
     steps their foot's label is on at both ends; the capture's from its velocities and labels."""
-    from experiments.mason2022_closed_loop import capture_planted_speed, planted_speed, stance_sweep
+    from experiments.mason2022_closed_loop import (
+        capture_planted_speed,
+        foot_amplitude_ratio,
+        planted_speed,
+        stance_sweep,
+    )
+    from jaxstyle.data.datasets import style_rows
     from jaxstyle.data.lpn_features import foot_bones
     from jaxstyle.labels.contacts import estimate_units_per_meter
 
@@ -253,6 +259,17 @@ def test_planted_speed_reads_the_networks_own_contact_labels(real):
         world[:, feet, 2] = (carried * origin[:, 1])[:, None] - 2.0
         assert abs(stance_sweep(world, contacts, origin, yaw, skeleton, 0) - want) < 1e-9, carried
     assert np.isnan(stance_sweep(world, np.zeros((120, 2)), origin, yaw, skeleton, 0))
+
+    # feet's phase amplitude: the capture's own rows give 1; the feet (limbs 2, 3) scaled by 0.25
+    # give 0.25 (the hands ignored); rows before ``start`` are left out
+    captured = np.asarray(ds.phases[style_rows(ds, "Neutral")], np.float64)
+    assert abs(foot_amplitude_ratio(captured, ds, "Neutral", 0) - 1.0) < 1e-9
+    scaled = captured.reshape(len(captured), 4, 2) * np.array([9.0, 9.0, 0.25, 0.25])[:, None]
+    assert abs(foot_amplitude_ratio(scaled.reshape(len(captured), 8), ds, "Neutral", 0) - 0.25) < 1e-9
+    feet_amp = np.linalg.norm(captured.reshape(len(captured), 4, 2)[:, 2:], axis=-1)
+    scaled[:10] = 0.0
+    want = np.median(0.25 * feet_amp[10:]) / np.median(feet_amp)
+    assert abs(foot_amplitude_ratio(scaled.reshape(len(captured), 8), ds, "Neutral", 10) - want) < 1e-9
 
 
 def test_floored_phases():
