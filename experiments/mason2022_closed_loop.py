@@ -296,6 +296,9 @@ def main(argv=None) -> None:
     p.add_argument("--foot-smooth", type=float, default=None,
                    help="the feet's weight of the predicted positions in the runtime's joint blend (default: the "
                         "other joints' 0.5, the paper's runtime; StyleNetModel.create)")
+    p.add_argument("--amplitude-floor", type=float, default=0.0,
+                   help="each limb's local-phase amplitude kept at least this fraction of its style's captured "
+                        "median (default 0: the paper's runtime; StyleNetModel.create)")
     args = p.parse_args(argv)
     if args.model:
         t0 = time.perf_counter()
@@ -306,7 +309,8 @@ def main(argv=None) -> None:
             chosen = Path(folder) / "chosen_rates.json"
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
             for floor in (0.0, PHASE_FLOOR):
-                rows += measure(loaded._replace(phase_floor=floor, foot_smooth=args.foot_smooth),
+                rows += measure(loaded._replace(phase_floor=floor, foot_smooth=args.foot_smooth,
+                                                amplitude_floor=args.amplitude_floor),
                                 list(loaded.model.data.styles), str(folder), new, args.blend_bias)
         title = f"the models of {', '.join(map(str, args.model))} ({time.perf_counter() - t0:.0f} s)"
         return write_report(args, rows, title)
@@ -326,7 +330,8 @@ def main(argv=None) -> None:
             trained = time.perf_counter() - t1
             print(f"{name}: {args.epochs} epochs, {trained:.0f} s (this call), {model_line(model)}", flush=True)
             for floor in (0.0, PHASE_FLOOR):
-                loaded = synthesis2022.Loaded(model, data, folder, args.epochs, floor, args.foot_smooth)
+                loaded = synthesis2022.Loaded(model, data, folder, args.epochs, floor, args.foot_smooth,
+                                              args.amplitude_floor)
                 rows += measure(loaded, styles, name, blend_bias=args.blend_bias)
     write_report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
                  f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")

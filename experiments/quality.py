@@ -72,9 +72,11 @@ def model_dirs(folder: Path) -> list[Path]:
     return sorted(d for d in folder.iterdir() if (d / "config.json").is_file()) if folder.is_dir() else []
 
 
-def lpn_rows(folder: Path, cache: Path, seconds: float, foot_smooth: float | None = FOOT_SMOOTH) -> list[dict]:
+def lpn_rows(folder: Path, cache: Path, seconds: float, foot_smooth: float | None = FOOT_SMOOTH,
+             amplitude_floor: float = 0.0) -> list[dict]:
     """Step 7 of the protocol: the quality rows of every 2022 model in ``folder``, its feet's runtime
-    blend ``foot_smooth`` (0.5: the paper's, :class:`jaxstyle.mason2022.synthesis.Loaded`)."""
+    blend ``foot_smooth`` (0.5: the paper's, :class:`jaxstyle.mason2022.synthesis.Loaded`) and
+    ``amplitude_floor`` (0: the paper's)."""
     dirs = model_dirs(folder)
     if not dirs:
         print(f"2022 models: none in {folder} (train them with experiments/mason2022_table2.py or "
@@ -84,7 +86,8 @@ def lpn_rows(folder: Path, cache: Path, seconds: float, foot_smooth: float | Non
     for d in dirs:
         t0 = time.perf_counter()
         try:
-            loaded = synthesis2022.load_model(d, cache=cache)._replace(foot_smooth=foot_smooth)
+            loaded = synthesis2022.load_model(d, cache=cache)._replace(foot_smooth=foot_smooth,
+                                                                       amplitude_floor=amplitude_floor)
             model = loaded.model
             chosen = d / "chosen_rates.json"
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
@@ -113,6 +116,9 @@ def main() -> None:
     parser.add_argument("--foot-smooth", type=float, default=FOOT_SMOOTH, metavar="S",
                         help="2022 models: the feet's weight of their predicted positions in the runtime's joint blend "
                              "(default %(default)s, the commands'; 0.5, like every joint, is the paper's runtime)")
+    parser.add_argument("--amplitude-floor", type=float, default=0.0, metavar="A",
+                        help="2022 models: each limb's local-phase amplitude kept at least A times its style's "
+                             "captured median (default 0, the paper's runtime)")
     a = parser.parse_args()
     run = a.run or Path("runs/quality_small" if a.small else "runs/quality")
     run.mkdir(parents=True, exist_ok=True)
@@ -152,7 +158,7 @@ def main() -> None:
     rows, drawn = quality.run(base.character_model(), subjects, base.skeleton, seconds=a.seconds)
     t_measure = time.perf_counter() - t1
     t1 = time.perf_counter()
-    rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds, a.foot_smooth)
+    rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds, a.foot_smooth, a.amplitude_floor)
     t_lpn = time.perf_counter() - t1
     checks = report.targets(rows)
     diag = [diagnose.diagnose(base.params, base.normalisers, s, base.skeleton)

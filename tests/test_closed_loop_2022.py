@@ -285,6 +285,53 @@ def test_floored_phases():
                                   fast)
 
 
+def test_floored_amplitudes_keep_each_limbs_angle():
+    """A limb below its floor is scaled up to it along its own angle, one above it is kept, one
+    without amplitude has no angle and is kept; a zero floor changes nothing."""
+    p = np.array([0.3 * np.sin(1.0), 0.3 * np.cos(1.0), 0.0, 2.0, 0.0, 0.0, -0.1, 0.0], np.float32)
+    floor = np.array([1.2, 1.0, 0.5, 0.4], np.float32)
+    out = np.asarray(lpn_phases.floored_amplitudes(jnp.asarray(p), jnp.asarray(floor)))
+    np.testing.assert_allclose(out[:2], [1.2 * np.sin(1.0), 1.2 * np.cos(1.0)], atol=1e-6)
+    np.testing.assert_allclose(out[2:4], p[2:4])  # amplitude 2 >= 1: kept
+    np.testing.assert_allclose(out[4:6], [0.0, 0.0])  # no angle: kept
+    np.testing.assert_allclose(out[6:8], [-0.4, 0.0], atol=1e-7)
+    np.testing.assert_array_equal(np.asarray(lpn_phases.floored_amplitudes(jnp.asarray(p), jnp.zeros(4))), p)
+
+
+def test_amplitude_floor_reaches_the_state_from_the_styles_capture(real):
+    """StyleNetModel's amplitude_floor: a character's state carries that fraction of its style's
+    median captured amplitude per limb (a numpy median of the style's rows), zeros without it;
+    bad values are refused."""
+    from jaxstyle.control.lpn_controller import StyleNetModel, initial_state
+    from jaxstyle.data.datasets import style_rows
+    from jaxstyle.mason2022 import pipeline
+    from jaxstyle.nn import style_models
+
+    ds, skeleton = real
+    config = pipeline.model_config(ds, hidden=8, generator_hidden=8, filters=2)
+    params = style_models.init_model(jax.random.PRNGKey(0), config)
+    rows = style_rows(ds, "Neutral")
+    want = np.median(np.linalg.norm(np.asarray(ds.phases[rows], np.float64).reshape(len(rows), 4, 2), axis=-1), 0)
+    with_floor = StyleNetModel.create(params, config, ds.normalisers(), skeleton, amplitude_floor=0.75)
+    np.testing.assert_allclose(with_floor.initial_state(ds, int(rows[0])).amplitude_floor, 0.75 * want, rtol=1e-6)
+    without = StyleNetModel.create(params, config, ds.normalisers(), skeleton)
+    start = without.initial_state(ds, int(rows[0]))
+    np.testing.assert_array_equal(start.amplitude_floor, np.zeros(4))
+    # one frame of the loop from the captured output row: the floor lifts every limb to it and is carried on
+    y = jnp.asarray(ds.outputs[rows[0]], jnp.float32)
+    free, _ = lpn_controller.advance(start, y, without.num_bones, 0.0, 0.5)
+    lifted, _ = lpn_controller.advance(start._replace(amplitude_floor=np.full(4, 50.0, np.float32)), y,
+                                       without.num_bones, 0.0, 0.5)
+    free_p, lifted_p = (np.asarray(s.phases, np.float64).reshape(4, 2) for s in (free, lifted))
+    np.testing.assert_allclose(np.linalg.norm(lifted_p, axis=-1), 50.0, rtol=1e-5)
+    np.testing.assert_allclose(lifted_p / 50.0, free_p / np.linalg.norm(free_p, axis=-1)[:, None], atol=1e-5)
+    np.testing.assert_array_equal(lifted.amplitude_floor, np.full(4, 50.0))
+    with pytest.raises(ValueError, match="amplitude_floor"):
+        StyleNetModel.create(params, config, ds.normalisers(), skeleton, amplitude_floor=-0.1)
+    with pytest.raises(ValueError, match="amplitude_floor"):
+        initial_state(ds.inputs[rows[0]], ds.phases[rows[0]], without.num_bones, amplitude_floor=[1.0, np.nan, 0, 0])
+
+
 def test_a_tiny_lpn_on_a_periodic_gait_keeps_stepping_for_10_s(tmp_path):
     """A tiny LPN-FiLM (5 epochs) on synthetic periodic walks: with the paper's runtime its closed
     loop stalls and the quality rows say so; with the default runtime (local phases floored at

@@ -54,8 +54,10 @@ from flax import struct
 from jaxstyle.control import loop
 from jaxstyle.control.loop import f32, initial_ground, normaliser_arrays, rotate_xz, trajectory_input
 from jaxstyle.control.lpn_phases import (
+    capture_phase_amplitude,
     capture_phase_rate,
     check_gate_columns,
+    floored_amplitudes,
     floored_phases,
     gate_input,
     phase_ratio,
@@ -79,7 +81,9 @@ class LPNState(NamedTuple):
     ``phase_ratio ()``, the style's ratio of global to local phase advance
     (:func:`jaxstyle.control.lpn_phases.global_phase_ratio`; constant over a rollout), and
     ``phase_floor ()``, the least advance of each limb's local phase per frame, in cycles
-    (:func:`jaxstyle.control.lpn_phases.floored_phases`; 0: none, the paper's runtime)."""
+    (:func:`jaxstyle.control.lpn_phases.floored_phases`; 0: none, the paper's runtime), and
+    ``amplitude_floor (4,)``, the least amplitude of each limb's local phase
+    (:func:`jaxstyle.control.lpn_phases.floored_amplitudes`; 0: none, the paper's runtime)."""
 
     hist_xz: jax.Array
     hist_yaw: jax.Array
@@ -89,6 +93,7 @@ class LPNState(NamedTuple):
     global_phase: jax.Array
     phase_ratio: jax.Array
     phase_floor: jax.Array = np.float32(0.0)
+    amplitude_floor: jax.Array = np.zeros(NUM_PHASE_FEATURES // 2, np.float32)
 
 
 class LPNRollout(NamedTuple):
@@ -124,12 +129,14 @@ class LPNRollout(NamedTuple):
 
 
 def initial_state(x_row: np.ndarray, phases_row: np.ndarray, num_bones: int, global_phase: float = 0.0,
-                  phase_ratio: float = 1.0, phase_floor: float = 0.0) -> LPNState:
+                  phase_ratio: float = 1.0, phase_floor: float = 0.0, amplitude_floor=None) -> LPNState:
     """The loop's start from one de-normalised LPN input row, its local phases and its global phase
     (cycles; e.g. a frame of real data: ``dataset.global_phase[row]``), with the style's
     ``phase_ratio`` (:func:`jaxstyle.control.lpn_phases.global_phase_ratio`) and ``phase_floor``
-    (cycles per frame, :func:`jaxstyle.control.lpn_phases.floored_phases`; 0: the paper's runtime):
-    the character stands at the global origin facing +Z with that row's pose."""
+    (cycles per frame, :func:`jaxstyle.control.lpn_phases.floored_phases`; 0: the paper's runtime)
+    and ``amplitude_floor`` (``(4,)`` per limb, :func:`jaxstyle.control.lpn_phases.floored_amplitudes`;
+    ``None``: none, the paper's runtime): the character stands at the global origin facing +Z with
+    that row's pose."""
     layout = LPNLayout(num_bones)
     x = np.asarray(x_row, dtype=np.float64)
     p = np.asarray(phases_row, dtype=np.float64)
@@ -142,10 +149,14 @@ def initial_state(x_row: np.ndarray, phases_row: np.ndarray, num_bones: int, glo
         raise ValueError("x_row, phases_row, global_phase, phase_ratio and phase_floor must be finite")
     if phase_ratio < 0 or phase_floor < 0:
         raise ValueError(f"phase_ratio and phase_floor must be non-negative, got {phase_ratio}, {phase_floor}")
+    amp = np.zeros(NUM_PHASE_FEATURES // 2) if amplitude_floor is None else np.asarray(amplitude_floor, np.float64)
+    if amp.shape != (NUM_PHASE_FEATURES // 2,) or not (np.isfinite(amp).all() and (amp >= 0).all()):
+        raise ValueError(f"amplitude_floor must be {NUM_PHASE_FEATURES // 2} finite non-negative amplitudes, "
+                         f"got {amplitude_floor}")
     hist_xz, hist_yaw, future = initial_ground(x, layout.input_groups)
     joints = x[layout.input_groups["joint_position"].start:]
     return LPNState(hist_xz, hist_yaw, f32(p), f32(joints), future, f32(np.mod(float(global_phase), 1.0)),
-                    f32(phase_ratio), f32(phase_floor))
+                    f32(phase_ratio), f32(phase_floor), f32(amp))
 
 
 def _yaw_rotate(v_Nx3: jax.Array, a) -> jax.Array:
@@ -232,13 +243,14 @@ def advance(state: LPNState, y: jax.Array, num_bones: int, stand=0.0, joint_smoo
     positions = jnp.stack([gpx + origin[0], pos[:, 1], gpz + origin[1]], axis=-1)
     phases = state.phases + phase_scale * (blended - state.phases)
     phases = floored_phases(state.phases, phases, phase_scale * state.phase_floor)
+    phases = floored_amplitudes(phases, phase_scale * state.amplitude_floor)
     dphi = phase_scale * state.phase_ratio * jnp.maximum(predicted_advance(y, num_bones), 0.0)
     global_phase = jnp.mod(state.global_phase + dphi, 1.0)
     contacts = y[g["foot_contact"]]
     new_state = LPNState(jnp.concatenate([state.hist_xz[1:], new_origin[None]]),
                          jnp.concatenate([state.hist_yaw[1:], new_yaw[None]]), phases,
                          next_joints, jnp.stack([fx, fz, fdx, fdz]), global_phase, state.phase_ratio,
-                         state.phase_floor)
+                         state.phase_floor, state.amplitude_floor)
     return new_state, LPNRollout(positions, new_origin, new_yaw, phases, contacts, y, global_phase)
 
 
@@ -264,11 +276,12 @@ class StyleNetModel:
     blend_bias: float = struct.field(pytree_node=False, default=1.5)
     phase_floor: float = struct.field(pytree_node=False, default=PHASE_FLOOR)
     bone_smooth: tuple[float, ...] | None = struct.field(pytree_node=False, default=None)
+    amplitude_floor: float = struct.field(pytree_node=False, default=0.0)
 
     @classmethod
     def create(cls, params: dict, config: StyleModelConfig, normalisers: tuple[Normaliser, Normaliser],
                skeleton=None, *, blend_bias: float = 1.5, phase_floor: float = PHASE_FLOOR,
-               foot_smooth: float | None = None) -> StyleNetModel:
+               foot_smooth: float | None = None, amplitude_floor: float = 0.0) -> StyleNetModel:
         """The model of a trained ``params``/``config`` with its training data's (input, output)
         :class:`Normaliser` s (or ``(mean, std)`` pairs); ``skeleton``, a clip of the training
         skeleton, gives the MANN backbone's gating columns (the other backbones need none) and
@@ -281,7 +294,11 @@ class StyleNetModel:
         (:func:`advance`; the other joints keep :data:`jaxstyle.control.loop.JOINT_SMOOTH`). Why:
         given the captured frame, the velocity head predicts a planted foot's motion far better
         than the position head (docs/mason2022.md, "Feet that slide"), so a low weight lets the
-        feet follow their predicted velocity."""
+        feet follow their predicted velocity.
+
+        ``amplitude_floor`` (not in the paper; 0: none, the paper's runtime): each limb's local-phase
+        amplitude is kept at least this fraction of its style's captured median
+        (:meth:`amplitude_per_limb`, :func:`jaxstyle.control.lpn_phases.floored_amplitudes`)."""
         x_norm, y_norm = (normaliser_arrays(n) for n in normalisers)
         num_bones = (len(x_norm[0]) - 48) // 12
         if LPNLayout(num_bones).input_size != config.input_size:
@@ -289,6 +306,9 @@ class StyleNetModel:
         cols = end_effector_columns(skeleton) if config.backbone == "mann" and skeleton is not None else None
         if not phase_floor >= 0:
             raise ValueError(f"phase_floor must be a non-negative fraction of the capture's rate, got {phase_floor}")
+        if not (amplitude_floor >= 0 and np.isfinite(amplitude_floor)):
+            raise ValueError(f"amplitude_floor must be a non-negative fraction of the capture's amplitude, "
+                             f"got {amplitude_floor}")
         bone_smooth = None
         if foot_smooth is not None:
             if skeleton is None or not 0.0 <= foot_smooth <= 1.0:
@@ -296,7 +316,7 @@ class StyleNetModel:
             feet = set(foot_bones(skeleton)[0])
             bone_smooth = tuple(float(foot_smooth) if b in feet else loop.JOINT_SMOOTH for b in range(num_bones))
         return cls(params, x_norm, y_norm, config, int(num_bones), check_gate_columns(config, cols), float(blend_bias),
-                   float(phase_floor), bone_smooth)
+                   float(phase_floor), bone_smooth, float(amplitude_floor))
 
     def joint_smooth(self):
         """The ``joint_smooth`` of :func:`advance`: :data:`jaxstyle.control.loop.JOINT_SMOOTH`, or
@@ -335,7 +355,15 @@ class StyleNetModel:
         ratio = 1.0 if style is None else self.phase_ratio(style, dataset, name)
         phase = float(dataset.global_phase[row]) if len(dataset.global_phase) == len(dataset.inputs) else 0.0
         return initial_state(dataset.inputs[row], dataset.phases[row], self.num_bones, phase, ratio,
-                             self.floor_per_frame(dataset, name))
+                             self.floor_per_frame(dataset, name), self.amplitude_per_limb(dataset, name))
+
+    def amplitude_per_limb(self, dataset, name: str) -> np.ndarray:
+        """``(4,)``: the least amplitude of each limb's local phase for a character of dataset style
+        ``name``: ``amplitude_floor`` times the style's captured median
+        (:func:`jaxstyle.control.lpn_phases.capture_phase_amplitude`); zeros without a floor."""
+        if self.amplitude_floor > 0:
+            return self.amplitude_floor * capture_phase_amplitude(dataset, name)
+        return np.zeros(NUM_PHASE_FEATURES // 2)
 
     def floor_per_frame(self, dataset, name: str) -> float:
         """The least advance per frame (cycles) of each limb's local phase for a character of

@@ -86,6 +86,31 @@ def floored_phases(p0_8: jax.Array, p1_8: jax.Array, floor) -> jax.Array:
     return jnp.where(use[:, None], moved, b).reshape(-1)
 
 
+def floored_amplitudes(p_8: jax.Array, floor_4: jax.Array) -> jax.Array:
+    """The local phases ``p (8,)`` with each limb's amplitude (the length of its ``(sin, cos)``
+    pair) at least ``floor_4 (4,)``, its angle kept; a limb without amplitude (no angle) keeps it.
+    ``floor_4 = 0`` returns ``p`` unchanged.
+
+    Why (not in the paper): the gating reads the phases scaled by their amplitudes, and the network
+    predicts the amplitudes for its own fed-back poses; a style whose feet's amplitudes collapse in
+    the closed loop (the 100STYLE Drunk to a fifth of its capture's, docs/mason2022.md, "Why Drunk
+    glides") barely cycles the experts however fast the phases turn."""
+    pairs = p_8.reshape(NUM_PHASE_FEATURES // 2, 2)
+    r = jnp.linalg.norm(pairs, axis=-1)
+    scale = jnp.where(r > 1e-6, jnp.maximum(r, floor_4) / jnp.maximum(r, 1e-6), 1.0)
+    return (pairs * scale[:, None]).reshape(-1)
+
+
+def capture_phase_amplitude(dataset, name: str) -> np.ndarray:
+    """``(4,)``: the median amplitude of each limb's local phase over dataset style ``name``'s rows
+    (0 for a style without rows)."""
+    rows = style_rows(dataset, name)
+    if not len(rows):
+        return np.zeros(NUM_PHASE_FEATURES // 2)
+    p = np.asarray(dataset.phases[rows], np.float64).reshape(len(rows), NUM_PHASE_FEATURES // 2, 2)
+    return np.median(np.linalg.norm(p, axis=-1), axis=0)
+
+
 def capture_phase_rate(dataset, name: str) -> float:
     """The median advance per frame (cycles) of the local phases of dataset style ``name``'s rows
     (:func:`local_phase_advance` between each row and the next frame of its clip): the rate a

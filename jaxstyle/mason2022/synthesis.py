@@ -68,6 +68,7 @@ class Loaded(NamedTuple):
     epochs: int
     phase_floor: float = PHASE_FLOOR
     foot_smooth: float | None = FOOT_SMOOTH
+    amplitude_floor: float = 0.0
 
     def character_model(self, *, blend_bias: float = 1.5) -> StyleNetModel:
         """The model as a :class:`jaxstyle.control.model.CharacterModel`
@@ -76,10 +77,13 @@ class Loaded(NamedTuple):
         at ``phase_floor`` times each style's capture rate
         (:func:`jaxstyle.control.lpn_phases.floored_phases`; 0: the paper's runtime), its feet's
         ``foot_smooth`` (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`; default
-        :data:`jaxstyle.train.defaults.FOOT_SMOOTH`; 0.5 or ``None``: the paper's runtime)."""
+        :data:`jaxstyle.train.defaults.FOOT_SMOOTH`; 0.5 or ``None``: the paper's runtime), its local
+        phases' amplitudes floored at ``amplitude_floor`` times each style's captured median (0: the
+        paper's runtime)."""
         m = self.model
         return StyleNetModel.create(m.params, m.config, self.data.base.normalisers(), self.data.skeleton,
-                                    blend_bias=blend_bias, phase_floor=self.phase_floor, foot_smooth=self.foot_smooth)
+                                    blend_bias=blend_bias, phase_floor=self.phase_floor, foot_smooth=self.foot_smooth,
+                                    amplitude_floor=self.amplitude_floor)
 
 
 def _dataclass(cls, values: dict):
