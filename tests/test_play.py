@@ -581,6 +581,23 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
     assert s._step._cache_size() == compiled
 
 
+def test_play_drives_a_2022_model_with_the_runtime_it_is_given(lpn_model, monkeypatch, tmp_path):
+    """`jaxstyle play --phase-floor F --foot-smooth S` reaches the reloaded 2022 model (the server's
+    load_any -> load_lpn_model); without them the model keeps the library's defaults."""
+    from jaxstyle.train.defaults import FOOT_SMOOTH, PHASE_FLOOR
+
+    folder = tmp_path
+    monkeypatch.setattr(synthesis2022, "load_model", lambda *a, **k: lpn_model.loaded)
+    (folder / "lpn").mkdir()
+    (folder / "lpn" / "config.json").write_text("{}")
+    pipeline2022.write_data_file(lpn_model.loaded.data, folder / "lpn")
+    default = models.load_any(folder, "lpn-film").loaded
+    assert (default.phase_floor, default.foot_smooth) == (PHASE_FLOOR, FOOT_SMOOTH)
+    paper = models.load_any(folder, "lpn-film", runtime={"phase_floor": 0.0, "foot_smooth": 0.5})
+    assert (paper.loaded.phase_floor, paper.loaded.foot_smooth) == (0.0, 0.5)
+    assert paper.character_model().joint_smooth().ravel().tolist() == [0.5] * lpn_model.num_bones
+
+
 def test_run_folder_models_and_bad_choices(lpn_model, tmp_path, capsys):
     folder = lpn_model.run_dir
     assert models.available_models(folder) == {}  # no config.json: this one was never trained

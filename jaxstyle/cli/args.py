@@ -148,6 +148,12 @@ def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds:
     p.add_argument("--allow-failed", action="store_true",
                    help="drive few-shot sets whose closed-loop check failed at every rate (marked [FAILED CHECK] in "
                         "the tables); by default such a set is refused with one line")
+    add_lpn_runtime_args(p)
+
+
+def add_lpn_runtime_args(p: argparse.ArgumentParser) -> None:
+    """The 2022 runtime's settings (``--phase-floor``, ``--foot-smooth``) of every command that
+    drives a 2022 model (:class:`jaxstyle.mason2022.synthesis.Loaded`)."""
     p.add_argument("--phase-floor", type=non_negative, default=PHASE_FLOOR, metavar="F",
                    help="2022 models: each limb's local phase advances at least F times its style's capture rate "
                         "per frame (0: the paper's runtime, whose closed loop can stall)")

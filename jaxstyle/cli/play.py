@@ -6,7 +6,15 @@ import re
 import time
 from pathlib import Path
 
-from jaxstyle.cli.args import LEARN_EPOCHS, SWEEP_RATES, add_common, check_positive, check_rates, finite
+from jaxstyle.cli.args import (
+    LEARN_EPOCHS,
+    SWEEP_RATES,
+    add_common,
+    add_lpn_runtime_args,
+    check_positive,
+    check_rates,
+    finite,
+)
 from jaxstyle.cli.common import DEMO_RUN, CLIError, Run
 
 PLAY_MODELS = ("pfnn", "lpn-film", "lpn-onehot", "lpn-resad", "mann-film", "pfnn-film", "pfnn-onehot", "pfnn-resad")
@@ -65,6 +73,7 @@ def add_arguments(p) -> None:
     p.add_argument("--allow-failed", action="store_true",
                    help="offer few-shot and learned styles whose closed-loop check failed at every rate (marked "
                         "[FAILED CHECK]); by default they are left out, with one line saying so")
+    add_lpn_runtime_args(p)
 
 
 def _run_demo(run: Run, args) -> None:
@@ -119,7 +128,8 @@ def run(args, run: Run) -> None:
                         Learning(args.learn_epochs, tuple(args.rates), tuple(args.clip_dir),
                                  int(args.max_upload_mb * 1e6)),
                         record_seconds=args.record_seconds, model=args.model, log=run.say,
-                        allow_failed=args.allow_failed)
+                        allow_failed=args.allow_failed,
+                        lpn_runtime={"phase_floor": args.phase_floor, "foot_smooth": args.foot_smooth})
     try:
         server.start()  # says where the page is, then loads the run
         while True:

@@ -271,12 +271,14 @@ def available_models(run_dir: str | Path) -> dict[str, str]:
     return out
 
 
-def load_lpn_model(run_dir: str | Path, *, progress: bool = False) -> LPNPlayModel:
+def load_lpn_model(run_dir: str | Path, *, progress: bool = False, runtime: dict | None = None) -> LPNPlayModel:
     """The trained 2022 model of ``RUN/lpn`` (:func:`jaxstyle.mason2022.synthesis.load_model`, its
-    rows cached in ``RUN/cache``) with its styles (:func:`lpn_play_model`). A folder without one
-    raises :class:`jaxstyle.data.folders.PipelineError` naming it."""
+    rows cached in ``RUN/cache``) with its styles (:func:`lpn_play_model`), driven with ``runtime``
+    (``phase_floor`` and ``foot_smooth`` of :class:`jaxstyle.mason2022.synthesis.Loaded`; default
+    its defaults). A folder without one raises :class:`jaxstyle.data.folders.PipelineError` naming it."""
     run_dir = Path(run_dir)
     loaded = synthesis2022.load_model(run_dir / LPN_DIR, cache=run_dir / "cache", progress=progress)
+    loaded = loaded._replace(**(runtime or {}))
     return lpn_play_model(loaded, run_dir)
 
 
@@ -306,10 +308,10 @@ def lpn_play_model(loaded: synthesis2022.Loaded, run_dir: str | Path | None = No
 
 
 def load_any(run_dir: str | Path, key: str | None = None, *, progress: bool = False,
-             allow_failed: bool = False) -> AnyPlayModel:
+             allow_failed: bool = False, runtime: dict | None = None) -> AnyPlayModel:
     """The model ``key`` of the run folder (:func:`available_models`; default: the 2018 model when
-    there is one, else the 2022 one; ``allow_failed`` as :func:`load_model`). A folder without it
-    raises one line naming what it has."""
+    there is one, else the 2022 one; ``allow_failed`` as :func:`load_model`; ``runtime`` as
+    :func:`load_lpn_model`). A folder without it raises one line naming what it has."""
     run_dir = Path(run_dir)
     have = available_models(run_dir)
     if key is None:
@@ -319,7 +321,7 @@ def load_any(run_dir: str | Path, key: str | None = None, *, progress: bool = Fa
     if key not in have:
         raise PlayError(f"{run_dir} has no trained {key} model (it has: {', '.join(have) or 'none'}); train one with "
                         f"`jaxstyle lpn --run {run_dir}` or `jaxstyle demo --model {key} --run {run_dir}`")
-    return load_lpn_model(run_dir, progress=progress)
+    return load_lpn_model(run_dir, progress=progress, runtime=runtime)
 
 
 _STEPS: dict = {}

@@ -97,13 +97,16 @@ class PlayServer(SceneView, LearnPanel, StylePanel):
       log: where notes go (the command line's run log).
       runs_root: the folder whose run folders the page may load (default: ``run_dir``'s parent).
       allow_failed: offer and keep styles that failed the closed-loop check.
+      lpn_runtime: the 2022 models' runtime settings (``phase_floor``, ``foot_smooth``;
+        :func:`jaxstyle.play.models.load_lpn_model`; default the library's).
     """
 
     def __init__(self, run_dir: str | Path, serving: Serving | None = None, learning: Learning | None = None, *,
                  model: str | None = None, record_seconds: float = 10.0,
                  log: Callable[[str], None] = lambda _: None, runs_root: str | Path | None = None,
-                 allow_failed: bool = False):
+                 allow_failed: bool = False, lpn_runtime: dict | None = None):
         serving = serving or Serving()
+        self.lpn_runtime = dict(lpn_runtime or {})
         self.run_dir = Path(run_dir)
         self.allow_failed = bool(allow_failed)  # offer and keep styles that failed the closed-loop check
         self.token = serving.token
@@ -191,7 +194,7 @@ class PlayServer(SceneView, LearnPanel, StylePanel):
         try:
             if model is None:
                 cached = self._models.get((str(run_dir), key))
-                model = cached or load_any(run_dir, key, allow_failed=self.allow_failed)
+                model = cached or load_any(run_dir, key, allow_failed=self.allow_failed, runtime=self.lpn_runtime)
             session = Session(model, record_seconds=max(self.record_seconds, 30.0))
             session.step()  # compiles the step
         except (JaxstyleError, ValueError, KeyError, OSError) as e:
