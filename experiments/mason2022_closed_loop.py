@@ -57,6 +57,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from jaxstyle.control.lpn_phases import phase_amplitudes
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.folders import PAPER_BASE, available_styles
 from jaxstyle.data.locate import mocap_dir
@@ -133,12 +134,9 @@ def foot_amplitude_ratio(phases_Tx8: np.ndarray, dataset, name: str, start: int)
     ``(sin, cos)`` pair scaled by its amplitude) over frames ``start:`` over the median of style
     ``name``'s captured rows: below 1 the gating sees the feet's phases smaller than in the
     capture, and a limb whose amplitude falls to 0 no longer cycles the experts whatever its
-    phase's advance."""
-    def feet(p):
-        return np.linalg.norm(np.asarray(p, np.float64).reshape(len(p), 4, 2)[:, 2:], axis=-1)
-
-    capture = float(np.median(feet(dataset.phases[style_rows(dataset, name)])))
-    return float(np.median(feet(phases_Tx8[start:])) / capture) if capture > 0 else float("nan")
+    phase's advance (:func:`jaxstyle.control.lpn_phases.phase_amplitudes`)."""
+    capture = float(np.median(phase_amplitudes(dataset.phases[style_rows(dataset, name)])[:, 2:]))
+    return float(np.median(phase_amplitudes(phases_Tx8[start:])[:, 2:]) / capture) if capture > 0 else float("nan")
 
 
 def capture_planted_speed(dataset, name: str, skeleton, upm: float) -> float:
@@ -330,8 +328,8 @@ def main(argv=None) -> None:
             trained = time.perf_counter() - t1
             print(f"{name}: {args.epochs} epochs, {trained:.0f} s (this call), {model_line(model)}", flush=True)
             for floor in (0.0, PHASE_FLOOR):
-                loaded = synthesis2022.Loaded(model, data, folder, args.epochs, floor, args.foot_smooth,
-                                              args.amplitude_floor)
+                loaded = synthesis2022.Loaded(model, data, folder, args.epochs, phase_floor=floor,
+                                              foot_smooth=args.foot_smooth, amplitude_floor=args.amplitude_floor)
                 rows += measure(loaded, styles, name, blend_bias=args.blend_bias)
     write_report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
                  f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")

@@ -130,7 +130,7 @@ def train(args) -> None:
         mine = []
         for name, run in done.runs.items():
             loaded = synthesis2022.Loaded(run.model, data, pipeline.model_folder(args.out, name), run.epochs,
-                                          floor, args.foot_smooth)
+                                          phase_floor=floor, foot_smooth=args.foot_smooth)
             mine += [{**r, "phase_floor": floor} for r in
                      synthesis2022.measure_quality(loaded, styles, path_names=PATHS, seconds=SECONDS).rows]
         figures = report.closed_loop_figures(mine)

@@ -101,14 +101,19 @@ def floored_amplitudes(p_8: jax.Array, floor_4: jax.Array) -> jax.Array:
     return (pairs * scale[:, None]).reshape(-1)
 
 
+def phase_amplitudes(p_Nx8) -> np.ndarray:
+    """``(N, 4)``: each limb's local-phase amplitude, the length of its ``(sin, cos)`` pair."""
+    p = np.asarray(p_Nx8, np.float64)
+    return np.linalg.norm(p.reshape(p.shape[:-1] + (NUM_PHASE_FEATURES // 2, 2)), axis=-1)
+
+
 def capture_phase_amplitude(dataset, name: str) -> np.ndarray:
     """``(4,)``: the median amplitude of each limb's local phase over dataset style ``name``'s rows
     (0 for a style without rows)."""
     rows = style_rows(dataset, name)
     if not len(rows):
         return np.zeros(NUM_PHASE_FEATURES // 2)
-    p = np.asarray(dataset.phases[rows], np.float64).reshape(len(rows), NUM_PHASE_FEATURES // 2, 2)
-    return np.median(np.linalg.norm(p, axis=-1), axis=0)
+    return np.median(phase_amplitudes(dataset.phases[rows]), axis=0)
 
 
 def capture_phase_rate(dataset, name: str) -> float:
