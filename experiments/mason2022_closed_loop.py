@@ -24,7 +24,8 @@ Protocol (fixed):
    path-following law of the quality benchmark), with the paper's runtime (``--phase-floor 0``)
    and with the local phases floored at :data:`jaxstyle.train.defaults.PHASE_FLOOR` of the style's
    capture rate (the default floor); both with the paper's joint blend on the feet unless
-   ``--foot-smooth S`` (the commands' default is :data:`jaxstyle.train.defaults.FOOT_SMOOTH`).
+   ``--foot-smooth S`` (the commands' default is :data:`jaxstyle.train.defaults.FOOT_SMOOTH`),
+   and on the other bones unless ``--body-smooth S`` (:data:`jaxstyle.train.defaults.BODY_SMOOTH`).
 4. Measures (:func:`jaxstyle.output.quality.run`, the quality benchmark's): the local phases'
    advance over the capture's (``phase_rate_ratio``, stalled below
    :data:`jaxstyle.output.quality.STALL_RATIO`), steps per second after foot locking, raw foot
@@ -41,7 +42,10 @@ Protocol (fixed):
 ``RUN/lpn`` of ``jaxstyle lpn``, reloaded with :func:`jaxstyle.mason2022.synthesis.load_model`, its
 rows cached in ``--run/cache``), each named by its folder, with both runtimes: its training styles
 and the new styles its FiLM generator was fine-tuned on (at their chosen rates, a failed check
-included and marked).
+included and marked). With ``--feedback`` it measures instead which fed-back input stills each
+training style's pose (:func:`feedback_rows`: along the style's two longest training clips, the
+clips' joint features and local phases or the loop's own, with the runtime's ``--foot-smooth`` /
+``--body-smooth``), written to ``--run/feedback.md`` and ``--run/feedback.csv``.
 
 Writes ``--run/closed_loop.md`` (the per-row table and the summary per recipe and runtime) and
 ``--run/closed_loop.csv``.
@@ -137,6 +141,51 @@ def foot_amplitude_ratio(phases_Tx8: np.ndarray, dataset, name: str, start: int)
     phase's advance (:func:`jaxstyle.control.lpn_phases.phase_amplitudes`)."""
     capture = float(np.median(phase_amplitudes(dataset.phases[style_rows(dataset, name)])[:, 2:]))
     return float(np.median(phase_amplitudes(phases_Tx8[start:])[:, 2:]) / capture) if capture > 0 else float("nan")
+
+
+FEEDBACK_MODES = {"teacher-forced": (True, True), "own phases": (True, False), "own joints": (False, True),
+                  "own joints and phases": (False, False)}
+
+
+def feedback_rows(loaded: synthesis2022.Loaded, styles, clips: int = 2, frames: int = 900) -> list[dict]:
+    """Which fed-back input stills a style's pose: along each of style's ``clips`` longest training
+    clips (their first ``frames`` rows), the network reads the clip's trajectory and, per mode of
+    :data:`FEEDBACK_MODES`, the clip's joint features and local phases or those its own loop
+    carries (:func:`jaxstyle.control.lpn_controller.partly_forced`, with ``loaded``'s runtime).
+    Per row, after the first second: ``feet_amplitude`` (median amplitude of the feet's carried
+    local phases over the clip's) and ``ankle_motion`` (the ankles' standard deviation over time of
+    their horizontal position in the character's frame over the clip's: near 0 for a still pose)."""
+    from jaxstyle.control.lpn_controller import partly_forced
+
+    model, base = loaded.character_model(), loaded.data.base
+    ankles = list(foot_bones(loaded.data.skeleton)[0][:2])
+    layout = LPNLayout(model.num_bones)
+    conditioning = {c.style: c.conditioning for c in synthesis2022.characters(loaded, styles=list(styles))}
+    start = layout.input_groups["joint_position"].start
+
+    def ankle_spread(joints_TxJ):
+        pos = np.asarray(joints_TxJ)[60:, :3 * model.num_bones].reshape(-1, model.num_bones, 3)[:, ankles]
+        return pos[..., [0, 2]].std(axis=0).mean()
+
+    out = []
+    for name in styles:
+        s = base.styles.index(name)
+        mine = np.unique(base.clip[(base.style == s) & (base.split == 0)])
+        for c in sorted(mine, key=lambda c: -np.sum(base.clip == c))[:clips]:
+            rows = np.where(base.clip == c)[0]
+            rows = rows[np.argsort(base.frame[rows])][:frames]
+            state = model.initial_state(base, int(rows[0]), conditioning[name])
+            capture_amp = np.median(phase_amplitudes(base.phases[rows][60:])[:, 2:])
+            capture_spread = ankle_spread(base.inputs[rows][:, start:])
+            for mode, flags in FEEDBACK_MODES.items():
+                _, frame = partly_forced(model, conditioning[name], state, base.inputs[rows], base.phases[rows],
+                                         np.asarray(flags))
+                phases = np.asarray(frame.phases)
+                joints = np.asarray(frame.outputs)[:, layout.output_groups["joint_position"]]
+                out.append({"style": name, "clip": int(c), "frames": len(rows), "mode": mode,
+                            "feet_amplitude": float(np.median(phase_amplitudes(phases[60:])[:, 2:]) / capture_amp),
+                            "ankle_motion": float(ankle_spread(joints) / capture_spread)})
+    return out
 
 
 def capture_planted_speed(dataset, name: str, skeleton, upm: float) -> float:
@@ -294,10 +343,20 @@ def main(argv=None) -> None:
     p.add_argument("--foot-smooth", type=float, default=None,
                    help="the feet's weight of the predicted positions in the runtime's joint blend (default: the "
                         "other joints' 0.5, the paper's runtime; StyleNetModel.create)")
+    p.add_argument("--body-smooth", type=float, default=None,
+                   help="every other bone's weight of its predicted position in the runtime's joint blend "
+                        "(default: 0.5, the paper's runtime; StyleNetModel.create)")
     p.add_argument("--amplitude-floor", type=float, default=0.0,
                    help="each limb's local-phase amplitude kept at least this fraction of its style's captured "
                         "median (default 0: the paper's runtime; StyleNetModel.create)")
+    p.add_argument("--feedback", action="store_true",
+                   help="with --model: which fed-back input stills each style's pose (feedback_rows) instead of "
+                        "driving the paths")
     args = p.parse_args(argv)
+    if args.feedback:
+        if not args.model:
+            p.error("--feedback measures the models of --model")
+        return write_feedback(args)
     if args.model:
         t0 = time.perf_counter()
         rows = []
@@ -308,7 +367,7 @@ def main(argv=None) -> None:
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
             for floor in (0.0, PHASE_FLOOR):
                 rows += measure(loaded._replace(phase_floor=floor, foot_smooth=args.foot_smooth,
-                                                amplitude_floor=args.amplitude_floor),
+                                                amplitude_floor=args.amplitude_floor, body_smooth=args.body_smooth),
                                 list(loaded.model.data.styles), str(folder), new, args.blend_bias)
         title = f"the models of {', '.join(map(str, args.model))} ({time.perf_counter() - t0:.0f} s)"
         return write_report(args, rows, title)
@@ -329,10 +388,44 @@ def main(argv=None) -> None:
             print(f"{name}: {args.epochs} epochs, {trained:.0f} s (this call), {model_line(model)}", flush=True)
             for floor in (0.0, PHASE_FLOOR):
                 loaded = synthesis2022.Loaded(model, data, folder, args.epochs, phase_floor=floor,
-                                              foot_smooth=args.foot_smooth, amplitude_floor=args.amplitude_floor)
+                                              foot_smooth=args.foot_smooth, amplitude_floor=args.amplitude_floor,
+                                              body_smooth=args.body_smooth)
                 rows += measure(loaded, styles, name, blend_bias=args.blend_bias)
     write_report(args, rows, f"{len(styles)} styles x {len(PATHS)} paths, {SECONDS:g} s each; LPN-FiLM 256 hidden, "
                  f"{args.epochs} epochs at 1e-3 ({time.perf_counter() - t0:.0f} s in all)")
+
+
+def feedback_table(rows: list[dict]) -> list[str]:
+    """Per model and style, each mode's feet amplitude and ankle motion over the capture's
+    (:func:`feedback_rows`; the clips' values separated by ``/``)."""
+    lines = ["| model | style | " + " | ".join(f"{m}: feet amplitude, ankle motion" for m in FEEDBACK_MODES) + " |",
+             "|---|---|" + "---|" * len(FEEDBACK_MODES)]
+    for model in dict.fromkeys(r["model"] for r in rows):
+        for style in dict.fromkeys(r["style"] for r in rows if r["model"] == model):
+            mine = [r for r in rows if (r["model"], r["style"]) == (model, style)]
+            cells = []
+            for mode in FEEDBACK_MODES:
+                got = [r for r in mine if r["mode"] == mode]
+                cells.append(" / ".join(f"{r['feet_amplitude']:.2f}" for r in got) + ", "
+                             + " / ".join(f"{r['ankle_motion']:.2f}" for r in got))
+            lines.append(f"| {model} | {style} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def write_feedback(args) -> None:
+    t0 = time.perf_counter()
+    rows = []
+    for folder in args.model:
+        loaded = synthesis2022.load_model(folder, cache=args.run / "cache")._replace(
+            foot_smooth=args.foot_smooth, body_smooth=args.body_smooth, amplitude_floor=args.amplitude_floor)
+        rows += [{"model": str(folder), **r} for r in feedback_rows(loaded, loaded.model.data.styles)]
+    lines = [f"which fed-back input stills the pose: the models of {', '.join(map(str, args.model))}, each style's "
+             f"two longest training clips ({time.perf_counter() - t0:.0f} s)", "", *feedback_table(rows)]
+    args.run.mkdir(parents=True, exist_ok=True)
+    (args.run / "feedback.md").write_text("\n".join(lines) + "\n")
+    quality_report.write_csv(rows, args.run / "feedback.csv")
+    print("\n".join(lines))
+    print(f"written: {args.run / 'feedback.md'}, {args.run / 'feedback.csv'}")
 
 
 def write_report(args, rows: list[dict], title: str) -> None:

@@ -32,7 +32,8 @@ as in the paper (which timed its own C# runtime on its own CPU). No motion captu
    each runtime of ``--phase-floors`` (0: the paper's; the default floor,
    :data:`jaxstyle.train.defaults.PHASE_FLOOR`), the feet blended as every joint (the paper's runtime;
    ``--foot-smooth S``: the feet's own weight, the commands' default being
-   :data:`jaxstyle.train.defaults.FOOT_SMOOTH`), summarised per model
+   :data:`jaxstyle.train.defaults.FOOT_SMOOTH`; ``--body-smooth S`` the other bones',
+   :data:`jaxstyle.train.defaults.BODY_SMOOTH`), summarised per model
    (:func:`jaxstyle.mason2022.report.closed_loop_figures`) with the verdicts of
    :func:`jaxstyle.mason2022.report.closed_loop_ordering_lines`.
 
@@ -130,7 +131,8 @@ def train(args) -> None:
         mine = []
         for name, run in done.runs.items():
             loaded = synthesis2022.Loaded(run.model, data, pipeline.model_folder(args.out, name), run.epochs,
-                                          phase_floor=floor, foot_smooth=args.foot_smooth)
+                                          phase_floor=floor, foot_smooth=args.foot_smooth,
+                                          body_smooth=args.body_smooth)
             mine += [{**r, "phase_floor": floor} for r in
                      synthesis2022.measure_quality(loaded, styles, path_names=PATHS, seconds=SECONDS).rows]
         figures = report.closed_loop_figures(mine)
@@ -165,6 +167,9 @@ def main() -> None:
     t.add_argument("--foot-smooth", type=float, default=None,
                    help="the feet's weight of the predicted positions in the runtime's joint blend (default: the "
                         "other joints' 0.5, the paper's runtime; the commands' default is FOOT_SMOOTH)")
+    t.add_argument("--body-smooth", type=float, default=None,
+                   help="every other bone's weight of its predicted position in the runtime's joint blend "
+                        "(default: 0.5, the paper's runtime; the commands' default is BODY_SMOOTH)")
     t.add_argument("--data", type=Path, help="a style folder (default: $JAXSTYLE_MOCAP/100style)")
     t.add_argument("--styles", type=names,
                    help="comma-separated training styles (default: the paper's base styles of the sample)")

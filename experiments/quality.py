@@ -2,7 +2,7 @@
 feet planted as well as the capture it learnt from?
 
     python experiments/quality.py [--small] [--run runs/quality] [--no-contacts] [--lpn runs/mason2022]
-        [--foot-smooth S]
+        [--foot-smooth S] [--body-smooth S]
 
 Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output):
 
@@ -39,7 +39,8 @@ Protocol (fixed; ``--small`` shrinks only the sizes and says so in every output)
    and measured by the same function beside the same captures
    (:func:`jaxstyle.output.quality.run` with the model's
    :class:`jaxstyle.control.lpn_controller.StyleNetModel`, its phase floor the default and its feet's
-   blend ``--foot-smooth``, default :data:`jaxstyle.train.defaults.FOOT_SMOOTH`); a model the
+   blend ``--foot-smooth``, default :data:`jaxstyle.train.defaults.FOOT_SMOOTH`, the other bones'
+   ``--body-smooth``, default :data:`jaxstyle.train.defaults.BODY_SMOOTH`); a model the
    controller cannot drive is skipped with one line saying why. Rows carry a ``model`` column.
 
 Writes to ``--run``: ``quality.csv``, ``quality.md`` (the table, the targets, the diagnosis),
@@ -61,7 +62,7 @@ from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, P
 from jaxstyle.mason2018 import base_model, pipeline, sweep_files
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.output import diagnose, preview, quality, report
-from jaxstyle.train.defaults import FOOT_SMOOTH
+from jaxstyle.train.defaults import BODY_SMOOTH, FOOT_SMOOTH
 
 
 def model_dirs(folder: Path) -> list[Path]:
@@ -73,10 +74,10 @@ def model_dirs(folder: Path) -> list[Path]:
 
 
 def lpn_rows(folder: Path, cache: Path, seconds: float, foot_smooth: float | None = FOOT_SMOOTH,
-             amplitude_floor: float = 0.0) -> list[dict]:
+             amplitude_floor: float = 0.0, body_smooth: float | None = BODY_SMOOTH) -> list[dict]:
     """Step 7 of the protocol: the quality rows of every 2022 model in ``folder``, its feet's runtime
     blend ``foot_smooth`` (0.5: the paper's, :class:`jaxstyle.mason2022.synthesis.Loaded`) and
-    ``amplitude_floor`` (0: the paper's)."""
+    ``amplitude_floor`` (0: the paper's) and the other bones' ``body_smooth`` (0.5: the paper's)."""
     dirs = model_dirs(folder)
     if not dirs:
         print(f"2022 models: none in {folder} (train them with experiments/mason2022_table2.py or "
@@ -87,7 +88,8 @@ def lpn_rows(folder: Path, cache: Path, seconds: float, foot_smooth: float | Non
         t0 = time.perf_counter()
         try:
             loaded = synthesis2022.load_model(d, cache=cache)._replace(foot_smooth=foot_smooth,
-                                                                       amplitude_floor=amplitude_floor)
+                                                                       amplitude_floor=amplitude_floor,
+                                                                       body_smooth=body_smooth)
             model = loaded.model
             chosen = d / "chosen_rates.json"
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
@@ -115,7 +117,10 @@ def main() -> None:
     parser.add_argument("--no-lpn", action="store_true", help="measure the 2018 models only")
     parser.add_argument("--foot-smooth", type=float, default=FOOT_SMOOTH, metavar="S",
                         help="2022 models: the feet's weight of their predicted positions in the runtime's joint blend "
-                             "(default %(default)s, the commands'; 0.5, like every joint, is the paper's runtime)")
+                             "(default %(default)s, the commands'; 0.5 is the paper's runtime)")
+    parser.add_argument("--body-smooth", type=float, default=BODY_SMOOTH, metavar="S",
+                        help="2022 models: every other bone's weight of its predicted position in the runtime's "
+                             "joint blend (default %(default)s, the commands'; 0.5 is the paper's runtime)")
     parser.add_argument("--amplitude-floor", type=float, default=0.0, metavar="A",
                         help="2022 models: each limb's local-phase amplitude kept at least A times its style's "
                              "captured median (default 0, the paper's runtime)")
@@ -158,7 +163,8 @@ def main() -> None:
     rows, drawn = quality.run(base.character_model(), subjects, base.skeleton, seconds=a.seconds)
     t_measure = time.perf_counter() - t1
     t1 = time.perf_counter()
-    rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds, a.foot_smooth, a.amplitude_floor)
+    rows += [] if a.no_lpn else lpn_rows(a.lpn, a.lpn_cache, a.seconds, a.foot_smooth, a.amplitude_floor,
+                                                 a.body_smooth)
     t_lpn = time.perf_counter() - t1
     checks = report.targets(rows)
     diag = [diagnose.diagnose(base.params, base.normalisers, s, base.skeleton)

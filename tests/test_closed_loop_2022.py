@@ -417,13 +417,13 @@ def test_lpn_command_passes_the_training_options_outside_the_paper():
 
 
 def test_foot_smooth_flag_is_a_fraction():
-    """`jaxstyle synthesize`, `demo` and `play` take --foot-smooth in [0, 1] (default the library's
-    FOOT_SMOOTH, as a reloaded model's) and --phase-floor (default PHASE_FLOOR) and refuse anything
-    else with argparse's one line."""
+    """`jaxstyle synthesize`, `demo` and `play` take --foot-smooth and --body-smooth in [0, 1]
+    (default the library's FOOT_SMOOTH and BODY_SMOOTH, as a reloaded model's) and --phase-floor
+    (default PHASE_FLOOR) and refuse anything else with argparse's one line."""
     from jaxstyle.cli.args import resolve_defaults
     from jaxstyle.cli.main import build_parser
     from jaxstyle.mason2022.synthesis import Loaded
-    from jaxstyle.train.defaults import FOOT_SMOOTH, PHASE_FLOOR
+    from jaxstyle.train.defaults import BODY_SMOOTH, FOOT_SMOOTH, PHASE_FLOOR
 
     parser, _ = build_parser()
     for command in (["synthesize"], ["demo"], ["play"]):
@@ -431,7 +431,10 @@ def test_foot_smooth_flag_is_a_fraction():
         resolve_defaults(args)
         assert args.foot_smooth == FOOT_SMOOTH == Loaded._field_defaults["foot_smooth"]
         assert args.phase_floor == PHASE_FLOOR == Loaded._field_defaults["phase_floor"]
+        assert args.body_smooth == BODY_SMOOTH == Loaded._field_defaults["body_smooth"]
         assert parser.parse_args([*command, "--foot-smooth", "0.1"]).foot_smooth == 0.1
+        assert parser.parse_args([*command, "--body-smooth", "0.2"]).body_smooth == 0.2
         for bad in ("1.5", "-0.1", "nan"):
-            with pytest.raises(SystemExit):
-                parser.parse_args([*command, "--foot-smooth", bad])
+            for flag in ("--foot-smooth", "--body-smooth"):
+                with pytest.raises(SystemExit):
+                    parser.parse_args([*command, flag, bad])

@@ -39,7 +39,7 @@ from jaxstyle.play import learn, models, session
 from jaxstyle.play.frame import Steering, control_row, control_rows
 from jaxstyle.play.models import PlayError
 from jaxstyle.play.scene import bone_transforms, ground_point
-from jaxstyle.train.defaults import FOOT_SMOOTH
+from jaxstyle.train.defaults import BODY_SMOOTH, FOOT_SMOOTH
 from tests import test_synthesis_lpn
 
 STYLES = ("Neutral", "Crouched")
@@ -464,7 +464,8 @@ def test_lpn_session_steps_like_the_controllers_step_and_switches_styles_without
     s.add_character("Crouched")
     s.walk_to(2.0, 4.0)
     single = step_fn(StyleNetModel.create(m.params, m.config, lpn_model.loaded.data.base.normalisers(),
-                                          lpn_model.loaded.data.skeleton, foot_smooth=FOOT_SMOOTH), None)
+                                          lpn_model.loaded.data.skeleton, foot_smooth=FOOT_SMOOTH,
+                                          body_smooth=BODY_SMOOTH), None)
     states = [jax.tree.map(lambda v, i=i: v[i], s._states) for i in range(2)]
     vectors = {n: np.asarray(st.conditioning) for n, st in lpn_model.styles.items()}
     compiled = None
@@ -565,7 +566,7 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
     s.set_style("Crouched", 0)
     s.set_blend(["Neutral", "Crouched"], [1.0, 3.0], 1)
     single = step_fn(StyleNetModel.create(model.params, config, (x_norm, y_norm), data.skeleton,
-                                          foot_smooth=FOOT_SMOOTH), None)
+                                          foot_smooth=FOOT_SMOOTH, body_smooth=BODY_SMOOTH), None)
     controls = s.controls()
     before = jax.tree.map(lambda v: v[1], s._states)
     frame = s.step()
@@ -584,7 +585,7 @@ def test_a_pfnn_backbone_2022_model_carries_each_characters_global_phase_rate(lp
 def test_play_drives_a_2022_model_with_the_runtime_it_is_given(lpn_model, monkeypatch, tmp_path):
     """`jaxstyle play --phase-floor F --foot-smooth S` reaches the reloaded 2022 model (the server's
     load_any -> load_lpn_model); without them the model keeps the library's defaults."""
-    from jaxstyle.train.defaults import FOOT_SMOOTH, PHASE_FLOOR
+    from jaxstyle.train.defaults import BODY_SMOOTH, FOOT_SMOOTH, PHASE_FLOOR
 
     folder = tmp_path
     monkeypatch.setattr(synthesis2022, "load_model", lambda *a, **k: lpn_model.loaded)
@@ -592,9 +593,9 @@ def test_play_drives_a_2022_model_with_the_runtime_it_is_given(lpn_model, monkey
     (folder / "lpn" / "config.json").write_text("{}")
     pipeline2022.write_data_file(lpn_model.loaded.data, folder / "lpn")
     default = models.load_any(folder, "lpn-film").loaded
-    assert (default.phase_floor, default.foot_smooth) == (PHASE_FLOOR, FOOT_SMOOTH)
-    paper = models.load_any(folder, "lpn-film", runtime={"phase_floor": 0.0, "foot_smooth": 0.5})
-    assert (paper.loaded.phase_floor, paper.loaded.foot_smooth) == (0.0, 0.5)
+    assert (default.phase_floor, default.foot_smooth, default.body_smooth) == (PHASE_FLOOR, FOOT_SMOOTH, BODY_SMOOTH)
+    paper = models.load_any(folder, "lpn-film", runtime={"phase_floor": 0.0, "foot_smooth": 0.5, "body_smooth": 0.5})
+    assert (paper.loaded.phase_floor, paper.loaded.foot_smooth, paper.loaded.body_smooth) == (0.0, 0.5, 0.5)
     assert paper.character_model().joint_smooth().ravel().tolist() == [0.5] * lpn_model.num_bones
 
 

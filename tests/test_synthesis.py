@@ -210,9 +210,8 @@ def _small_lpn(x, y, backbone="lpn", modulation="film"):
     return config, params, x_norm, y_norm
 
 
-def test_foot_smooth_blends_only_the_feet(lpn_clip):
-    """StyleNetModel's foot_smooth: the ankles and toes carry s P + (1 - s)(p + V) with their own
-    s, every other joint the default 0.5; foot_smooth 0.5 is the paper's runtime exactly."""
+def _blend_setup(lpn_clip):
+    """A small LPN on the clip, its feet and other bones, a circle's controls, a start and a style."""
     m, feats = lpn_clip
     x, y, p = feats.inputs, feats.outputs, feats.phases
     config, params, x_norm, y_norm = _small_lpn(x, y)
@@ -222,6 +221,27 @@ def test_foot_smooth_blends_only_the_feet(lpn_clip):
     controls = loop.signal_controls(paths.circle(0.5, 0.5, 1.5, units_per_meter=100.0), follow_gain=1.0)
     state = lpn_controller.initial_state(x[10], p[10], num_bones)
     style = jnp.concatenate([0.3 * jnp.ones(16), jnp.zeros(16), 0.3 * jnp.ones(16), jnp.zeros(16)])
+    return m, config, params, x_norm, y_norm, num_bones, feet, others, controls, state, style
+
+
+def _first_frame_blend(half, other, style, state, controls, num_bones):
+    """One frame of a model blending every bone at 0.5 and of ``other``: the predicted positions
+    ``P`` (from ``0.5 P + 0.5 (p + V)``), ``p + V`` and both models' carried positions, in ``C_t``."""
+    control = (controls.offsets[0], controls.yaw[0])
+    _, f_half = half.step(style, state, control)
+    _, f_other = other.step(style, state, control)
+    g = js.LPNLayout(num_bones).output_groups
+    moved_on = (np.asarray(state.joints[:3 * num_bones]).reshape(num_bones, 3)
+                + np.asarray(f_half.outputs[g["joint_velocity"]]).reshape(num_bones, 3))  # p + V in C_t
+    half_pos = np.asarray(f_half.outputs[g["joint_position"]]).reshape(num_bones, 3)
+    other_pos = np.asarray(f_other.outputs[g["joint_position"]]).reshape(num_bones, 3)
+    return 2 * half_pos - moved_on, moved_on, half_pos, other_pos
+
+
+def test_foot_smooth_blends_only_the_feet(lpn_clip):
+    """StyleNetModel's foot_smooth: the ankles and toes carry s P + (1 - s)(p + V) with their own
+    s, every other joint the default 0.5; foot_smooth 0.5 is the paper's runtime exactly."""
+    m, config, params, x_norm, y_norm, num_bones, feet, others, controls, state, style = _blend_setup(lpn_clip)
     paper = StyleNetModel.create(params, config, (x_norm, y_norm))
     half = StyleNetModel.create(params, config, (x_norm, y_norm), m, foot_smooth=0.5)
     low = StyleNetModel.create(params, config, (x_norm, y_norm), m, foot_smooth=0.1)
@@ -229,15 +249,7 @@ def test_foot_smooth_blends_only_the_feet(lpn_clip):
     assert s.shape == (num_bones, 1) and np.all(s[feet] == np.float32(0.1)) and np.all(s[others] == 0.5)
     np.testing.assert_array_equal(np.asarray(rollout(paper, style, state, controls).positions),
                                   np.asarray(rollout(half, style, state, controls).positions))
-    control = (controls.offsets[0], controls.yaw[0])
-    _, f_half = half.step(style, state, control)
-    _, f_low = low.step(style, state, control)
-    g = js.LPNLayout(num_bones).output_groups
-    moved_on = (np.asarray(state.joints[:3 * num_bones]).reshape(num_bones, 3)
-                + np.asarray(f_half.outputs[g["joint_velocity"]]).reshape(num_bones, 3))  # p + V in C_t
-    half_pos = np.asarray(f_half.outputs[g["joint_position"]]).reshape(num_bones, 3)
-    low_pos = np.asarray(f_low.outputs[g["joint_position"]]).reshape(num_bones, 3)
-    predicted = 2 * half_pos - moved_on  # P, from 0.5 P + 0.5 (p + V)
+    predicted, moved_on, half_pos, low_pos = _first_frame_blend(half, low, style, state, controls, num_bones)
     np.testing.assert_allclose(low_pos[feet], 0.1 * predicted[feet] + 0.9 * moved_on[feet], atol=1e-3)
     np.testing.assert_array_equal(low_pos[others], half_pos[others])
     assert np.abs(low_pos[feet] - half_pos[feet]).max() > 1e-3
@@ -245,6 +257,60 @@ def test_foot_smooth_blends_only_the_feet(lpn_clip):
         StyleNetModel.create(params, config, (x_norm, y_norm), foot_smooth=0.1)
     with pytest.raises(ValueError, match="foot_smooth"):
         StyleNetModel.create(params, config, (x_norm, y_norm), m, foot_smooth=1.5)
+
+
+def test_body_smooth_blends_every_other_bone(lpn_clip):
+    """StyleNetModel's body_smooth: every bone without foot_smooth carries s P + (1 - s)(p + V)
+    with s = body_smooth (the feet keep foot_smooth); body_smooth 0.5 is the paper's runtime exactly."""
+    m, config, params, x_norm, y_norm, num_bones, feet, others, controls, state, style = _blend_setup(lpn_clip)
+    paper = StyleNetModel.create(params, config, (x_norm, y_norm))
+    half = StyleNetModel.create(params, config, (x_norm, y_norm), body_smooth=0.5)
+    assert half.bone_smooth is None
+    np.testing.assert_array_equal(np.asarray(rollout(paper, style, state, controls).positions),
+                                  np.asarray(rollout(half, style, state, controls).positions))
+    body = StyleNetModel.create(params, config, (x_norm, y_norm), body_smooth=0.2)
+    both = StyleNetModel.create(params, config, (x_norm, y_norm), m, foot_smooth=0.1, body_smooth=0.2)
+    assert np.all(body.joint_smooth() == np.float32(0.2))
+    s = both.joint_smooth()
+    assert np.all(s[feet] == np.float32(0.1)) and np.all(s[others] == np.float32(0.2))
+    predicted, moved_on, _, got = _first_frame_blend(half, both, style, state, controls, num_bones)
+    np.testing.assert_allclose(got[others], 0.2 * predicted[others] + 0.8 * moved_on[others], atol=1e-3)
+    np.testing.assert_allclose(got[feet], 0.1 * predicted[feet] + 0.9 * moved_on[feet], atol=1e-3)
+    assert np.abs(got[others] - (predicted[others] + moved_on[others]) / 2).max() > 1e-3
+    for bad in (1.5, -0.1, float("nan")):
+        with pytest.raises(ValueError, match="body_smooth"):
+            StyleNetModel.create(params, config, (x_norm, y_norm), body_smooth=bad)
+
+
+def test_partly_forced_reads_the_clip_or_its_own_loop(lpn_clip):
+    """partly_forced: with the clip's joints and phases every frame's output is the network applied
+    to the clip's rows (a batch call); with neither, frame 1 reads what advance() carried from frame 0."""
+    from jaxstyle.control.lpn_phases import gate_input
+
+    m, feats = lpn_clip
+    x, y, p = feats.inputs, feats.outputs, feats.phases
+    config, params, x_norm, y_norm = _small_lpn(x, y)
+    model = StyleNetModel.create(params, config, (x_norm, y_norm), m, foot_smooth=0.1, body_smooth=0.2)
+    style = jnp.concatenate([0.3 * jnp.ones(16), jnp.zeros(16), 0.3 * jnp.ones(16), jnp.zeros(16)])
+    state = lpn_controller.initial_state(x[10], p[10], len(feats.bones))
+    rows = slice(10, 40)
+    forced, _ = lpn_controller.partly_forced(model, style, state, x[rows], p[rows], np.array([True, True]))
+    (mu, sd), (y_mu, y_sd) = (tuple(np.asarray(v) for v in n) for n in (model.x_norm, model.y_norm))
+    x_n = (x[rows] - mu) / sd
+    gate = gate_input(config, jnp.asarray(p[rows], jnp.float32), jnp.zeros(30), jnp.asarray(x_n, jnp.float32), None)
+    direct = style_models.model_apply(params, config, jnp.asarray(x_n, jnp.float32), gate, style)
+    np.testing.assert_allclose(np.asarray(forced), np.asarray(direct) * y_sd + y_mu,
+                               rtol=1e-4, atol=1e-4)
+    own, frames = lpn_controller.partly_forced(model, style, state, x[rows], p[rows], np.array([False, False]))
+    np.testing.assert_allclose(np.asarray(own[0]), np.asarray(forced[0]), rtol=1e-5, atol=1e-5)
+    carried, _ = lpn_controller.advance(state, own[0], model.num_bones, 0.0, model.joint_smooth())
+    x1 = np.concatenate([x[11][:48], np.asarray(carried.joints)])
+    x1_n = jnp.asarray(((x1 - mu) / sd)[None], jnp.float32)
+    gate1 = gate_input(config, carried.phases[None], carried.global_phase[None], x1_n, None)
+    want = style_models.model_apply(params, config, x1_n, gate1, style)[0] * y_sd + y_mu
+    np.testing.assert_allclose(np.asarray(own[1]), np.asarray(want), rtol=1e-4, atol=1e-4)
+    assert np.abs(np.asarray(own[1]) - np.asarray(forced[1])).max() > 1e-3
+    np.testing.assert_allclose(np.asarray(frames.phases[0]), np.asarray(carried.phases), atol=1e-6)
 
 
 def test_lpn_batch_equals_single_rollouts_and_decodes(lpn_clip):

@@ -62,6 +62,7 @@ PHASE_FLOOR = LazyDefault("jaxstyle.train.defaults", "PHASE_FLOOR")
 """The 2022 runtime's floor on the local phases' advance (the library's default)."""
 
 FOOT_SMOOTH = LazyDefault("jaxstyle.train.defaults", "FOOT_SMOOTH")
+BODY_SMOOTH = LazyDefault("jaxstyle.train.defaults", "BODY_SMOOTH")
 """The 2022 runtime's weight of the feet's predicted positions (the library's default)."""
 
 
@@ -152,15 +153,19 @@ def add_synth_args(p: argparse.ArgumentParser, *, paths: Sequence[str], seconds:
 
 
 def add_lpn_runtime_args(p: argparse.ArgumentParser) -> None:
-    """The 2022 runtime's settings (``--phase-floor``, ``--foot-smooth``) of every command that
+    """The 2022 runtime's settings (``--phase-floor``, ``--foot-smooth``, ``--body-smooth``) of every command that
     drives a 2022 model (:class:`jaxstyle.mason2022.synthesis.Loaded`)."""
     p.add_argument("--phase-floor", type=non_negative, default=PHASE_FLOOR, metavar="F",
                    help="2022 models: each limb's local phase advances at least F times its style's capture rate "
                         "per frame (0: the paper's runtime, whose closed loop can stall)")
     p.add_argument("--foot-smooth", type=fraction, default=FOOT_SMOOTH, metavar="S",
                    help="2022 models: the feet carry S of their predicted positions and 1 - S of their positions "
-                        "moved on by their predicted velocities (default %(default)s, which slides less; 0.5, like "
-                        "every other joint, is the paper's runtime; docs/mason2022.md 'Feet that slide')")
+                        "moved on by their predicted velocities (default %(default)s, which slides less; 0.5 is the "
+                        "paper's runtime; docs/mason2022.md 'Feet that slide')")
+    p.add_argument("--body-smooth", type=fraction, default=BODY_SMOOTH, metavar="S",
+                   help="2022 models: every other bone carries S of its predicted position and 1 - S of its position "
+                        "moved on by its predicted velocity (default %(default)s; 0.5 is the paper's runtime; "
+                        "docs/mason2022.md 'Why Drunk glides')")
 
 
 def finite(text: str) -> float:

@@ -194,7 +194,7 @@ def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
         files += list(finetune.write_finetune(result, run.dir / "lpn").values())
         sets = list(result.styles[:1])
     loaded = synthesis2022.Loaded(model, data, run.dir / "lpn", args.lpn_epochs, phase_floor=args.phase_floor,
-                                  foot_smooth=args.foot_smooth)
+                                  foot_smooth=args.foot_smooth, body_smooth=args.body_smooth)
     base_styles = [s for s in ("Neutral", "Crouched") if s in model.data.styles] or list(model.data.styles[:2])
     blend = list(args.blend_weights) if args.blend_weights else None
     if blend is not None and len(blend) == 3 and len(base_styles) + len(sets) < 3:

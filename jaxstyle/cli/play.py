@@ -129,7 +129,8 @@ def run(args, run: Run) -> None:
                                  int(args.max_upload_mb * 1e6)),
                         record_seconds=args.record_seconds, model=args.model, log=run.say,
                         allow_failed=args.allow_failed,
-                        lpn_runtime={"phase_floor": args.phase_floor, "foot_smooth": args.foot_smooth})
+                        lpn_runtime={"phase_floor": args.phase_floor, "foot_smooth": args.foot_smooth,
+                                     "body_smooth": args.body_smooth})
     try:
         server.start()  # says where the page is, then loads the run
         while True:

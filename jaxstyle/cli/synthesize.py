@@ -119,7 +119,8 @@ def run_lpn(args, run: Run) -> None:
         raise CLIError("give --blend (50/50) or --blend-weights, not both")
     directory = args.model_dir or run.dir / "lpn"
     loaded = synthesis2022.load_model(directory, cache=run.dir / "cache", progress=progress(args))
-    loaded = loaded._replace(phase_floor=args.phase_floor, foot_smooth=args.foot_smooth)
+    loaded = loaded._replace(phase_floor=args.phase_floor, foot_smooth=args.foot_smooth,
+                              body_smooth=args.body_smooth)
     kind = synthesis2022.model_key(loaded.model.name) if loaded.model.name in synthesis2022.MODELS.values() else "?"
     if kind != args.model:
         raise CLIError(f"--model {args.model}: {directory} holds {loaded.model.name} ({kind}); "

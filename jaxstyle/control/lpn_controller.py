@@ -254,6 +254,32 @@ def advance(state: LPNState, y: jax.Array, num_bones: int, stand=0.0, joint_smoo
     return new_state, LPNRollout(positions, new_origin, new_yaw, phases, contacts, y, global_phase)
 
 
+@jax.jit
+def partly_forced(model: StyleNetModel, style, state: LPNState, inputs_TxD: jax.Array, phases_Tx8: jax.Array,
+                  capture_2: jax.Array) -> tuple[jax.Array, LPNRollout]:
+    """A diagnostic loop along a captured clip: frame ``t`` reads the trajectory of the
+    de-normalised input row ``inputs_TxD[t]``, and the joint features and gating local phases
+    of that row and ``phases_Tx8[t]`` where ``capture_2 = (joints, phases)`` says so (booleans),
+    else those the loop carries (:func:`advance`, with ``model``'s runtime). ``(True, True)`` is
+    the network teacher-forced on the clip, ``(False, False)`` its closed loop driven by the
+    clip's trajectory. Returns the de-normalised network outputs ``(T, O)`` (before the
+    runtime's blends) and the :class:`LPNRollout`."""
+    start = inputs_TxD.shape[1] - state.joints.shape[0]
+
+    def step(st, rows):
+        x_cap, p_cap = rows
+        joints = jnp.where(capture_2[0], x_cap[start:], st.joints)
+        phases = jnp.where(capture_2[1], p_cap, st.phases)
+        x_n = ((jnp.concatenate([x_cap[:start], joints]) - model.x_norm[0]) / model.x_norm[1])[None]
+        gate = gate_input(model.config, phases[None], st.global_phase[None], x_n, model.gate_columns)
+        y_n = style_models.model_apply(model.params, model.config, x_n, gate, style)[0]
+        y = y_n * model.y_norm[1] + model.y_norm[0]
+        new, frame = advance(st._replace(joints=joints, phases=phases), y, model.num_bones, 0.0, model.joint_smooth())
+        return new, (y, frame)
+
+    return jax.lax.scan(step, state, (jnp.asarray(inputs_TxD, jnp.float32), jnp.asarray(phases_Tx8, jnp.float32)))[1]
+
+
 @struct.dataclass
 class StyleNetModel:
     """A 2022 style model (LPN, MANN or PFNN backbone with FiLM, one-hot or residual-adapter
@@ -265,7 +291,7 @@ class StyleNetModel:
     adapter (what :func:`jaxstyle.nn.style_models.model_apply` takes). ``gate_columns``: the MANN
     backbone's gating columns of the normalised input. ``bone_smooth``: ``None`` (every bone
     :data:`jaxstyle.control.loop.JOINT_SMOOTH`) or each bone's blend weight (:meth:`create`'s
-    ``foot_smooth`` on the feet, :meth:`joint_smooth`)."""
+    ``foot_smooth`` on the feet and ``body_smooth`` on the other bones, :meth:`joint_smooth`)."""
 
     params: dict
     x_norm: tuple
@@ -281,7 +307,8 @@ class StyleNetModel:
     @classmethod
     def create(cls, params: dict, config: StyleModelConfig, normalisers: tuple[Normaliser, Normaliser],
                skeleton=None, *, blend_bias: float = 1.5, phase_floor: float = PHASE_FLOOR,
-               foot_smooth: float | None = None, amplitude_floor: float = 0.0) -> StyleNetModel:
+               foot_smooth: float | None = None, amplitude_floor: float = 0.0,
+               body_smooth: float | None = None) -> StyleNetModel:
         """The model of a trained ``params``/``config`` with its training data's (input, output)
         :class:`Normaliser` s (or ``(mean, std)`` pairs); ``skeleton``, a clip of the training
         skeleton, gives the MANN backbone's gating columns (the other backbones need none) and
@@ -291,10 +318,18 @@ class StyleNetModel:
         without a skeleton; the reloaded models of :class:`jaxstyle.mason2022.synthesis.Loaded` and
         the commands use :data:`jaxstyle.train.defaults.FOOT_SMOOTH`): the ankles' and toes' own
         weight ``s`` of the predicted positions in the carried ``s P + (1 - s)(p + V)``
-        (:func:`advance`; the other joints keep :data:`jaxstyle.control.loop.JOINT_SMOOTH`). Why:
+        (:func:`advance`; the other joints carry ``body_smooth``). Why:
         given the captured frame, the velocity head predicts a planted foot's motion far better
         than the position head (docs/mason2022.md, "Feet that slide"), so a low weight lets the
         feet follow their predicted velocity.
+
+        ``body_smooth`` (not in the paper; ``None``: :data:`jaxstyle.control.loop.JOINT_SMOOTH`,
+        the paper's 0.5; the reloaded models use :data:`jaxstyle.train.defaults.BODY_SMOOTH`): the
+        same weight for every other bone (every bone without ``foot_smooth``). Why: fed its own
+        poses along captured Drunk clips (with the clips' trajectory and local phases), the
+        paper-size network stills the pose (its ankles move a quarter to a third as much as in the
+        clips) with the paper's blend; a low weight lets the body follow the predicted velocities
+        (docs/mason2022.md, "Why Drunk glides").
 
         ``amplitude_floor`` (not in the paper; 0: none, the paper's runtime): each limb's local-phase
         amplitude is kept at least this fraction of its style's captured median
@@ -309,12 +344,15 @@ class StyleNetModel:
         if not (amplitude_floor >= 0 and np.isfinite(amplitude_floor)):
             raise ValueError(f"amplitude_floor must be a non-negative fraction of the capture's amplitude, "
                              f"got {amplitude_floor}")
-        bone_smooth = None
+        body = loop.JOINT_SMOOTH if body_smooth is None else body_smooth
+        if not 0.0 <= body <= 1.0:
+            raise ValueError(f"body_smooth must be in [0, 1], got {body_smooth}")
+        bone_smooth = None if body == loop.JOINT_SMOOTH else (float(body),) * int(num_bones)
         if foot_smooth is not None:
             if skeleton is None or not 0.0 <= foot_smooth <= 1.0:
                 raise ValueError(f"foot_smooth must be in [0, 1] and needs the skeleton's feet, got {foot_smooth}")
             feet = set(foot_bones(skeleton)[0])
-            bone_smooth = tuple(float(foot_smooth) if b in feet else loop.JOINT_SMOOTH for b in range(num_bones))
+            bone_smooth = tuple(float(foot_smooth) if b in feet else float(body) for b in range(num_bones))
         return cls(params, x_norm, y_norm, config, int(num_bones), check_gate_columns(config, cols), float(blend_bias),
                    float(phase_floor), bone_smooth, float(amplitude_floor))
 

@@ -34,7 +34,7 @@ from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output.check import Judging, StyleStart, check_pairs, choose_rates, failed_criteria
 from jaxstyle.train import scan
 from jaxstyle.train.checkpoint import json_text
-from jaxstyle.train.defaults import FILM_DEFAULT_RATES, FOOT_SMOOTH, ROLLOUT_FIELDS, RolloutCheck
+from jaxstyle.train.defaults import BODY_SMOOTH, FILM_DEFAULT_RATES, FOOT_SMOOTH, ROLLOUT_FIELDS, RolloutCheck
 
 """Dropout rates of the FiLM fine-tuning sweep."""
 
@@ -247,7 +247,8 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.initial_state`: that frame's pose, local
     and global phases); the capture's feet are measured on that clip's BVH. The characters run the
     default runtime, local phases floored (:data:`jaxstyle.train.defaults.PHASE_FLOOR`) and the
-    feet's blend :data:`jaxstyle.train.defaults.FOOT_SMOOTH`, as synthesis does."""
+    feet's blend :data:`jaxstyle.train.defaults.FOOT_SMOOTH` and the other bones'
+    :data:`jaxstyle.train.defaults.BODY_SMOOTH`, as synthesis does."""
     check = check or RolloutCheck()
     from jaxstyle.control import lpn_controller
     from jaxstyle.labels.contacts import FootJoints, estimate_units_per_meter, floor_heights
@@ -260,7 +261,7 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
     feet = list(FootJoints.find(skeleton).ankles) + list(FootJoints.find(skeleton).toes)
     gen0 = model.params["style"]["generator"]
     character = lpn_controller.StyleNetModel.create(model.params, model.config, data.base.normalisers(), skeleton,
-                                                    foot_smooth=FOOT_SMOOTH)
+                                                    foot_smooth=FOOT_SMOOTH, body_smooth=BODY_SMOOTH)
     starts, styles = [], []
     for s in range(len(result.styles)):
         rows = new.train_rows[s]

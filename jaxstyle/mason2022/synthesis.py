@@ -46,7 +46,7 @@ from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import drive
 from jaxstyle.output.check import FAILED_MARK, failed_check, refusal
 from jaxstyle.output.drive import Character
-from jaxstyle.train.defaults import FOOT_SMOOTH, PHASE_FLOOR
+from jaxstyle.train.defaults import BODY_SMOOTH, FOOT_SMOOTH, PHASE_FLOOR
 
 MODELS = {"lpn-film": "LPN FiLM", "lpn-onehot": "LPN One-hot", "lpn-resad": "LPN Resad", "mann-film": "MANN FiLM",
           "pfnn-film": "PFNN FiLM", "pfnn-onehot": "PFNN One-hot", "pfnn-resad": "PFNN Resad"}
@@ -69,6 +69,7 @@ class Loaded(NamedTuple):
     phase_floor: float = PHASE_FLOOR
     foot_smooth: float | None = FOOT_SMOOTH
     amplitude_floor: float = 0.0
+    body_smooth: float | None = BODY_SMOOTH
 
     def character_model(self, *, blend_bias: float = 1.5) -> StyleNetModel:
         """The model as a :class:`jaxstyle.control.model.CharacterModel`
@@ -79,11 +80,12 @@ class Loaded(NamedTuple):
         ``foot_smooth`` (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`; default
         :data:`jaxstyle.train.defaults.FOOT_SMOOTH`; 0.5 or ``None``: the paper's runtime), its local
         phases' amplitudes floored at ``amplitude_floor`` times each style's captured median (0: the
-        paper's runtime)."""
+        paper's runtime), the other bones' ``body_smooth`` (default
+        :data:`jaxstyle.train.defaults.BODY_SMOOTH`; 0.5 or ``None``: the paper's runtime)."""
         m = self.model
         return StyleNetModel.create(m.params, m.config, self.data.base.normalisers(), self.data.skeleton,
                                     blend_bias=blend_bias, phase_floor=self.phase_floor, foot_smooth=self.foot_smooth,
-                                    amplitude_floor=self.amplitude_floor)
+                                    amplitude_floor=self.amplitude_floor, body_smooth=self.body_smooth)
 
 
 def _dataclass(cls, values: dict):

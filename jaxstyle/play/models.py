@@ -274,7 +274,7 @@ def available_models(run_dir: str | Path) -> dict[str, str]:
 def load_lpn_model(run_dir: str | Path, *, progress: bool = False, runtime: dict | None = None) -> LPNPlayModel:
     """The trained 2022 model of ``RUN/lpn`` (:func:`jaxstyle.mason2022.synthesis.load_model`, its
     rows cached in ``RUN/cache``) with its styles (:func:`lpn_play_model`), driven with ``runtime``
-    (``phase_floor`` and ``foot_smooth`` of :class:`jaxstyle.mason2022.synthesis.Loaded`; default
+    (``phase_floor``, ``foot_smooth`` and ``body_smooth`` of :class:`jaxstyle.mason2022.synthesis.Loaded`; default
     its defaults). A folder without one raises :class:`jaxstyle.data.folders.PipelineError` naming it."""
     run_dir = Path(run_dir)
     loaded = synthesis2022.load_model(run_dir / LPN_DIR, cache=run_dir / "cache", progress=progress)

@@ -97,7 +97,7 @@ class PlayServer(SceneView, LearnPanel, StylePanel):
       log: where notes go (the command line's run log).
       runs_root: the folder whose run folders the page may load (default: ``run_dir``'s parent).
       allow_failed: offer and keep styles that failed the closed-loop check.
-      lpn_runtime: the 2022 models' runtime settings (``phase_floor``, ``foot_smooth``;
+      lpn_runtime: the 2022 models' runtime settings (``phase_floor``, ``foot_smooth``, ``body_smooth``;
         :func:`jaxstyle.play.models.load_lpn_model`; default the library's).
     """
 

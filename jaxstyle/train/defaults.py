@@ -28,8 +28,8 @@ that it steps: its steps per second, skating and style distance are."""
 
 FOOT_SMOOTH = 0.1
 """The 2022 runtime's default weight of the ankles' and toes' predicted positions in the blend
-``s P + (1 - s)(p + V)`` it carries each frame (the other joints keep
-:data:`jaxstyle.control.loop.JOINT_SMOOTH`, 0.5; 0.5 on the feet is the paper's runtime;
+``s P + (1 - s)(p + V)`` it carries each frame (the other joints :data:`BODY_SMOOTH`; 0.5 on every
+joint, :data:`jaxstyle.control.loop.JOINT_SMOOTH`, is the paper's runtime;
 :meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`). Not in the paper: teacher-forced,
 the network's velocity head moves a planted foot about 0.3 m/s and its position head about 2.4 m/s
 (capture 0.09), so the feet follow their velocities. Chosen among 0, 0.05, 0.1, 0.2 and 0.5 on three
@@ -37,6 +37,18 @@ demo-size models (8 epochs, seeds 0-2) by their summed median raw skating (0.1 a
 0 makes the feet float), then checked on models it was not chosen on: the 4- and 16-epoch ones
 of the same protocol and the paper-size model, on the quality benchmark's protocol too
 (docs/mason2022.md, "Feet that slide")."""
+
+BODY_SMOOTH = 0.2
+"""The 2022 runtime's default weight of every other bone's predicted position in the same blend
+(:data:`FOOT_SMOOTH` on the feet; :meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`'s
+``body_smooth``; 0.5, :data:`jaxstyle.control.loop.JOINT_SMOOTH`, is the paper's runtime). Not in
+the paper: fed its own poses along a captured clip, the paper-size network's position head draws
+Drunk's pose to a standstill while its velocities keep it stepping. 0.2 rather than 0.1 by the
+rule that chose :data:`FOOT_SMOOTH` (the lower summed median raw skating on the three 8- and the
+three 16-epoch demo-size models); against 0.5, on the nine 4-, 8- and 16-epoch demo-size models it
+is about even (summed raw skating 39.2 against 41.4, 36 against 37 rows stepping), while on the
+paper-size model (where it was found) Drunk steps and the quality protocol's LPN FiLM rows slide
+and step closer to their captures (docs/mason2022.md, "Why Drunk glides")."""
 
 
 @dataclasses.dataclass(frozen=True)
