@@ -183,6 +183,7 @@ def test_contact_loss_against_numpy_on_captured_rows(real):
     assert float(weighted[0]) > float(plain[0]) + 1e-4
 
 
+@pytest.mark.slow  # about 40 s: trains with an option outside the paper's recipe; the default run checks contact_loss
 def test_training_with_the_contact_loss_plants_the_feet_it_is_taught(real, tmp_path):
     """Four epochs of a tiny LPN-FiLM with contact_loss_weight 10 against the paper's recipe (same
     seed): its teacher-forced contact loss on the training rows is lower (0.026 against 0.039 m
