@@ -148,7 +148,7 @@ FEEDBACK_MODES = {"teacher-forced": (True, True), "own phases": (True, False), "
 
 
 def feedback_rows(loaded: synthesis2022.Loaded, styles, clips: int = 2, frames: int = 900) -> list[dict]:
-    """Which fed-back input stills a style's pose: along each of style's ``clips`` longest training
+    """Which fed-back input stills a style's pose: along each of the style's ``clips`` longest training
     clips (their first ``frames`` rows), the network reads the clip's trajectory and, per mode of
     :data:`FEEDBACK_MODES`, the clip's joint features and local phases or those its own loop
     carries (:func:`jaxstyle.control.lpn_controller.partly_forced`, with ``loaded``'s runtime).

@@ -62,8 +62,10 @@ PHASE_FLOOR = LazyDefault("jaxstyle.train.defaults", "PHASE_FLOOR")
 """The 2022 runtime's floor on the local phases' advance (the library's default)."""
 
 FOOT_SMOOTH = LazyDefault("jaxstyle.train.defaults", "FOOT_SMOOTH")
-BODY_SMOOTH = LazyDefault("jaxstyle.train.defaults", "BODY_SMOOTH")
 """The 2022 runtime's weight of the feet's predicted positions (the library's default)."""
+
+BODY_SMOOTH = LazyDefault("jaxstyle.train.defaults", "BODY_SMOOTH")
+"""The 2022 runtime's weight of the other bones' predicted positions (the library's default)."""
 
 
 def add_common(parser: argparse.ArgumentParser, run_default: Path | None = DEFAULT_RUN) -> None:
