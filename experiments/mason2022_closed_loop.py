@@ -43,7 +43,7 @@ Protocol (fixed):
 rows cached in ``--run/cache``), each named by its folder, with both runtimes: its training styles
 and the new styles its FiLM generator was fine-tuned on (at their chosen rates, a failed check
 included and marked). With ``--feedback`` it measures instead which fed-back input stills each
-training style's pose (:func:`feedback_rows`: along the style's two longest training clips, the
+style's pose, fine-tuned ones included (:func:`feedback_rows`: along the style's two longest training clips, the
 clips' joint features and local phases or the loop's own, with the runtime's ``--foot-smooth`` /
 ``--body-smooth``), written to ``--run/feedback.md`` and ``--run/feedback.csv``.
 
@@ -147,20 +147,25 @@ FEEDBACK_MODES = {"teacher-forced": (True, True), "own phases": (True, False), "
                   "own joints and phases": (False, False)}
 
 
-def feedback_rows(loaded: synthesis2022.Loaded, styles, clips: int = 2, frames: int = 900) -> list[dict]:
-    """Which fed-back input stills a style's pose: along each of the style's ``clips`` longest training
+def feedback_rows(loaded: synthesis2022.Loaded, styles, new_styles=(), clips: int = 2, frames: int = 900
+                  ) -> list[dict]:
+    """Which fed-back input stills a style's pose: for each training style of ``styles`` and each
+    fine-tuned new style of ``new_styles`` (its FiLM vector at its chosen rate, a failed check
+    included and marked; its clips' rows), along each of the style's ``clips`` longest training
     clips (their first ``frames`` rows), the network reads the clip's trajectory and, per mode of
     :data:`FEEDBACK_MODES`, the clip's joint features and local phases or those its own loop
     carries (:func:`jaxstyle.control.lpn_controller.partly_forced`, with ``loaded``'s runtime).
     Per row, after the first second: ``feet_amplitude`` (median amplitude of the feet's carried
     local phases over the clip's) and ``ankle_motion`` (the ankles' standard deviation over time of
     their horizontal position in the character's frame over the clip's: near 0 for a still pose)."""
+
     from jaxstyle.control.lpn_controller import partly_forced
 
-    model, base = loaded.character_model(), loaded.data.base
+    model = loaded.character_model()
     ankles = list(foot_bones(loaded.data.skeleton)[0][:2])
     layout = LPNLayout(model.num_bones)
-    conditioning = {c.style: c.conditioning for c in synthesis2022.characters(loaded, styles=list(styles))}
+    characters = synthesis2022.characters(loaded, styles=list(styles), new_styles=list(new_styles),
+                                          allow_failed=True)
     start = layout.input_groups["joint_position"].start
 
     def ankle_spread(joints_TxJ):
@@ -168,21 +173,22 @@ def feedback_rows(loaded: synthesis2022.Loaded, styles, clips: int = 2, frames: 
         return pos[..., [0, 2]].std(axis=0).mean()
 
     out = []
-    for name in styles:
-        s = base.styles.index(name)
-        mine = np.unique(base.clip[(base.style == s) & (base.split == 0)])
-        for c in sorted(mine, key=lambda c: -np.sum(base.clip == c))[:clips]:
-            rows = np.where(base.clip == c)[0]
-            rows = rows[np.argsort(base.frame[rows])][:frames]
-            state = model.initial_state(base, int(rows[0]), conditioning[name])
-            capture_amp = np.median(phase_amplitudes(base.phases[rows][60:])[:, 2:])
-            capture_spread = ankle_spread(base.inputs[rows][:, start:])
+    for character in characters:
+        ds = character.dataset
+        own = ds.style == ds.styles.index(character.style)
+        mine = np.unique(ds.clip[own & (ds.split == 0)] if (own & (ds.split == 0)).any() else ds.clip[own])
+        for c in sorted(mine, key=lambda c: -np.sum(ds.clip == c))[:clips]:
+            rows = np.where(ds.clip == c)[0]
+            rows = rows[np.argsort(ds.frame[rows])][:frames]
+            state = model.initial_state(ds, int(rows[0]), character.conditioning)
+            capture_amp = np.median(phase_amplitudes(ds.phases[rows][60:])[:, 2:])
+            capture_spread = ankle_spread(ds.inputs[rows][:, start:])
             for mode, flags in FEEDBACK_MODES.items():
-                _, frame = partly_forced(model, conditioning[name], state, base.inputs[rows], base.phases[rows],
+                _, frame = partly_forced(model, character.conditioning, state, ds.inputs[rows], ds.phases[rows],
                                          np.asarray(flags))
                 phases = np.asarray(frame.phases)
                 joints = np.asarray(frame.outputs)[:, layout.output_groups["joint_position"]]
-                out.append({"style": name, "clip": int(c), "frames": len(rows), "mode": mode,
+                out.append({"style": character.title, "clip": int(c), "frames": len(rows), "mode": mode,
                             "feet_amplitude": float(np.median(phase_amplitudes(phases[60:])[:, 2:]) / capture_amp),
                             "ankle_motion": float(ankle_spread(joints) / capture_spread)})
     return out
@@ -418,9 +424,12 @@ def write_feedback(args) -> None:
     for folder in args.model:
         loaded = synthesis2022.load_model(folder, cache=args.run / "cache")._replace(
             foot_smooth=args.foot_smooth, body_smooth=args.body_smooth, amplitude_floor=args.amplitude_floor)
-        rows += [{"model": str(folder), **r} for r in feedback_rows(loaded, loaded.model.data.styles)]
+        chosen = Path(folder) / "chosen_rates.json"
+        new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
+        rows += [{"model": str(folder), **r} for r in feedback_rows(loaded, loaded.model.data.styles, new)]
     lines = [f"which fed-back input stills the pose: the models of {', '.join(map(str, args.model))}, each style's "
-             f"two longest training clips ({time.perf_counter() - t0:.0f} s)", "", *feedback_table(rows)]
+             f"two longest training clips, fine-tuned styles included ({time.perf_counter() - t0:.0f} s)", "",
+             *feedback_table(rows)]
     args.run.mkdir(parents=True, exist_ok=True)
     (args.run / "feedback.md").write_text("\n".join(lines) + "\n")
     quality_report.write_csv(rows, args.run / "feedback.csv")
