@@ -61,6 +61,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from jaxstyle.cli.args import add_joint_blend_args
 from jaxstyle.control.lpn_phases import phase_amplitudes
 from jaxstyle.data.datasets import style_rows
 from jaxstyle.data.folders import PAPER_BASE, available_styles
@@ -346,12 +347,7 @@ def main(argv=None) -> None:
     p.add_argument("--model", type=Path, action="append", help="measure this trained model's folder instead")
     p.add_argument("--blend-bias", type=float, default=1.5,
                    help="the runtime's trajectory blend bias (default 1.5, the synthesis default)")
-    p.add_argument("--foot-smooth", type=float, default=None,
-                   help="the feet's weight of the predicted positions in the runtime's joint blend (default: the "
-                        "other joints' 0.5, the paper's runtime; StyleNetModel.create)")
-    p.add_argument("--body-smooth", type=float, default=None,
-                   help="every other bone's weight of its predicted position in the runtime's joint blend "
-                        "(default: 0.5, the paper's runtime; StyleNetModel.create)")
+    add_joint_blend_args(p, paper=True)
     p.add_argument("--amplitude-floor", type=float, default=0.0,
                    help="each limb's local-phase amplitude kept at least this fraction of its style's captured "
                         "median (default 0: the paper's runtime; StyleNetModel.create)")

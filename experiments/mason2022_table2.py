@@ -52,6 +52,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
+from jaxstyle.cli.args import add_joint_blend_args
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
 from jaxstyle.nn.style_models import TABLE2, StyleModelConfig
@@ -164,12 +165,7 @@ def main() -> None:
     t.add_argument("--filters", type=int, default=32)
     t.add_argument("--learning-rate", type=float, default=1e-3)
     t.add_argument("--phase-floors", type=float, nargs="+", default=[0.0, PHASE_FLOOR])
-    t.add_argument("--foot-smooth", type=float, default=None,
-                   help="the feet's weight of the predicted positions in the runtime's joint blend (default: the "
-                        "other joints' 0.5, the paper's runtime; the commands' default is FOOT_SMOOTH)")
-    t.add_argument("--body-smooth", type=float, default=None,
-                   help="every other bone's weight of its predicted position in the runtime's joint blend "
-                        "(default: 0.5, the paper's runtime; the commands' default is BODY_SMOOTH)")
+    add_joint_blend_args(t, paper=True)
     t.add_argument("--data", type=Path, help="a style folder (default: $JAXSTYLE_MOCAP/100style)")
     t.add_argument("--styles", type=names,
                    help="comma-separated training styles (default: the paper's base styles of the sample)")

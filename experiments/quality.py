@@ -58,6 +58,7 @@ from pathlib import Path
 import jax
 
 import jaxstyle as js
+from jaxstyle.cli.args import add_joint_blend_args, resolve_defaults
 from jaxstyle.data.folders import LOCOMOTION_GAITS, PAPER_BASE, PAPER_FEWSHOT, PipelineError, available_styles
 from jaxstyle.mason2018 import base_model, pipeline, sweep_files
 from jaxstyle.mason2022 import synthesis as synthesis2022
@@ -115,16 +116,12 @@ def main() -> None:
     parser.add_argument("--lpn-cache", type=Path, default=Path("runs/cache"),
                         help="the 2022 models' LPN row cache (default runs/cache, experiments/mason2022_styles.py's)")
     parser.add_argument("--no-lpn", action="store_true", help="measure the 2018 models only")
-    parser.add_argument("--foot-smooth", type=float, default=FOOT_SMOOTH, metavar="S",
-                        help="2022 models: the feet's weight of their predicted positions in the runtime's joint blend "
-                             "(default %(default)s, the commands'; 0.5 is the paper's runtime)")
-    parser.add_argument("--body-smooth", type=float, default=BODY_SMOOTH, metavar="S",
-                        help="2022 models: every other bone's weight of its predicted position in the runtime's "
-                             "joint blend (default %(default)s, the commands'; 0.5 is the paper's runtime)")
+    add_joint_blend_args(parser)
     parser.add_argument("--amplitude-floor", type=float, default=0.0, metavar="A",
                         help="2022 models: each limb's local-phase amplitude kept at least A times its style's "
                              "captured median (default 0, the paper's runtime)")
     a = parser.parse_args()
+    resolve_defaults(a)
     run = a.run or Path("runs/quality_small" if a.small else "runs/quality")
     run.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

@@ -160,14 +160,23 @@ def add_lpn_runtime_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--phase-floor", type=non_negative, default=PHASE_FLOOR, metavar="F",
                    help="2022 models: each limb's local phase advances at least F times its style's capture rate "
                         "per frame (0: the paper's runtime, whose closed loop can stall)")
-    p.add_argument("--foot-smooth", type=fraction, default=FOOT_SMOOTH, metavar="S",
+    add_joint_blend_args(p)
+
+
+def add_joint_blend_args(p: argparse.ArgumentParser, *, paper: bool = False) -> None:
+    """``--foot-smooth`` and ``--body-smooth``: the 2022 runtime's weights of the feet's and the
+    other bones' predicted positions in the blend it carries
+    (:meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`), in [0, 1]. Default the
+    library's :data:`FOOT_SMOOTH` and :data:`BODY_SMOOTH` (the commands; :func:`resolve_defaults`
+    gives their values), or with ``paper`` ``None``: the paper's 0.5 on every joint (the
+    experiments whose recorded figures were measured so)."""
+    default = "default 0.5, the paper's runtime" if paper else "default %(default)s; 0.5 is the paper's runtime"
+    p.add_argument("--foot-smooth", type=fraction, default=None if paper else FOOT_SMOOTH, metavar="S",
                    help="2022 models: the feet carry S of their predicted positions and 1 - S of their positions "
-                        "moved on by their predicted velocities (default %(default)s, which slides less; 0.5 is the "
-                        "paper's runtime; docs/mason2022.md 'Feet that slide')")
-    p.add_argument("--body-smooth", type=fraction, default=BODY_SMOOTH, metavar="S",
+                        f"moved on by their predicted velocities ({default}; docs/mason2022.md 'Feet that slide')")
+    p.add_argument("--body-smooth", type=fraction, default=None if paper else BODY_SMOOTH, metavar="S",
                    help="2022 models: every other bone carries S of its predicted position and 1 - S of its position "
-                        "moved on by its predicted velocity (default %(default)s; 0.5 is the paper's runtime; "
-                        "docs/mason2022.md 'Why Drunk glides')")
+                        f"moved on by its predicted velocity ({default}; docs/mason2022.md 'Why Drunk glides')")
 
 
 def finite(text: str) -> float:

@@ -42,8 +42,9 @@ BODY_SMOOTH = 0.2
 """The 2022 runtime's default weight of every other bone's predicted position in the same blend
 (:data:`FOOT_SMOOTH` on the feet; :meth:`jaxstyle.control.lpn_controller.StyleNetModel.create`'s
 ``body_smooth``; 0.5, :data:`jaxstyle.control.loop.JOINT_SMOOTH`, is the paper's runtime). Not in
-the paper: fed its own poses along a captured clip, the paper-size network's position head draws
-Drunk's pose to a standstill while its velocities keep it stepping. 0.2 rather than 0.1 by the
+the paper: fed its own poses along captured clips, the paper-size network stills Drunk's pose with
+the paper's blend, and carrying the bones more by their predicted velocities gives much of the
+motion back on one of the two clips (docs/mason2022.md). 0.2 rather than 0.1 by the
 rule that chose :data:`FOOT_SMOOTH` (the lower summed median raw skating on the three 8- and the
 three 16-epoch demo-size models); against 0.5, on the nine 4-, 8- and 16-epoch demo-size models it
 is about even (summed raw skating 39.2 against 41.4, 36 against 37 rows stepping), while on the
