@@ -162,6 +162,24 @@ def test_step_figures_cannot_be_passed_by_frozen_or_gliding_feet(mocap):
     glide[..., 2] += 150.0 * np.arange(len(pos))[:, None] / m.fps  # the frozen pose slides at 1.5 m/s
     g = metrics.step_figures(glide, m, m.fps)
     assert g.steps_per_s == 0.0 and g.stance_fraction == 0.0
+    assert f.lifted_steps_per_s == 0.0 and g.lifted_steps_per_s == 0.0
+    # in real walking every counted onset ends a lift of the foot
+    assert real.lifted_steps_per_s <= real.steps_per_s and real.lifted_steps_per_s >= 0.9 * real.steps_per_s
+
+
+@pytest.mark.parametrize("lift_cm, lifted", [(0.0, 0), (5.0, 1)])
+def test_a_foot_that_slides_out_of_contact_on_the_floor_is_not_a_lifted_step(mocap, lift_cm, lifted):
+    m = js.read_bvh(mocap / "100style" / "Neutral" / "Neutral_FW.bvh").frames(0, 240)
+    pos = np.broadcast_to(js.global_positions(m)[:1], (240, m.num_joints, 3)).copy()  # a still stance
+    feet = metrics.FootJoints.find(m)
+    foot = [feet.ankles[0], feet.toes[0]]
+    # frames 100-119: one foot moves 1.5 m/s forward (faster than the release speed), raised by lift_cm, then stands
+    ramp = np.clip(np.arange(240) - 100, 0, 20)
+    pos[:, foot, 2] += (150.0 / m.fps * ramp)[:, None]
+    pos[100:120, foot, 1] += lift_cm * np.sin(np.pi * np.arange(20) / 19)[:, None] ** 0.25
+    figs = metrics.step_figures(pos, m, m.fps, floor_2x2=footlock.skeleton_floor(m))
+    assert figs.steps_per_s * m.duration == pytest.approx(1.0)  # one contact onset either way
+    assert figs.lifted_steps_per_s * m.duration == pytest.approx(lifted)
 
 
 def test_bad_settings_are_named():

@@ -132,11 +132,14 @@ def test_closed_loop_figures_tell_stepping_from_gliding():
         _row("PFNN One-hot", "Angry", "straight", 2.4, 0.5, 0.96, 0.7, shows=True)]  # 1.2x, feet down 96%
     for r, ratio in zip(rows[4:6], (1.0, 0.1), strict=True):  # the LPN's local phases: one stalled
         r["phase_rate_ratio"] = ratio
+    for r in rows:  # lifted steps: the captures' 2.0 a second, Drunk's 2.2 onsets only 1.0 lifted (a slide)
+        r["lifted_steps_per_s"] = {2.2: 1.0}.get(r["steps_per_s"], r["steps_per_s"])
     f = report.closed_loop_figures(rows)
     lpn, pfnn = f["LPN FiLM"], f["PFNN One-hot"]
     assert lpn["phase_rate_ratio"] == pytest.approx(0.55) and np.isnan(pfnn["phase_rate_ratio"])  # none: NaN
     assert (lpn["rows"], lpn["diverged"], lpn["stepping"], lpn["gliding"], lpn["stalled"]) == (3, 1, 1, 1, 1)
     assert (pfnn["rows"], pfnn["stepping"], pfnn["gliding"], pfnn["stalled"]) == (2, 1, 1, 0)
+    assert (lpn["lifted_stepping"], pfnn["lifted_stepping"]) == (0, 1)
     np.testing.assert_allclose([lpn["steps_ratio"], lpn["skating_ratio"], lpn["style_distance"]],
                                [np.median([1.1, 0.1]), np.median([2.0, 9.0]), np.median([0.3, 2.0])])
     np.testing.assert_allclose([pfnn["steps_ratio"], pfnn["skating_ratio"]], [np.median([0.7, 1.2]), 4.5])

@@ -77,22 +77,27 @@ def closed_loop_figures(rows: list[dict]) -> dict[str, dict]:
     included) the closed-loop figures that tell stepping from gliding: ``rows`` driven,
     ``diverged`` (a non-finite rollout), ``stalled`` (local phases stalled,
     :func:`jaxstyle.output.quality.phase_figures`), ``stepping`` (steps per second of the locked
-    skeleton within 25% of its capture's), ``gliding`` (feet on the floor over 95% of frames where
-    its capture's are not), the medians over rows of ``steps_ratio``, ``skating_ratio`` (raw foot
-    skating of the network's joints over its capture's), ``phase_rate_ratio`` (the local phases'
-    advance over the capture's), ``style_distance`` (m), ``wrist_range_ratio``, and ``shows`` /
-    ``styled`` (rows whose style shows, of the rows of a style other than Neutral)."""
+    skeleton within 25% of its capture's), ``lifted_stepping`` (the same of
+    ``lifted_steps_per_s``, :class:`jaxstyle.output.metrics.StepFigures`), ``gliding`` (feet on the
+    floor over 95% of frames where its capture's are not), the medians over rows of
+    ``steps_ratio``, ``skating_ratio`` (raw foot skating of the network's joints over its
+    capture's), ``phase_rate_ratio`` (the local phases' advance over the capture's),
+    ``style_distance`` (m), ``wrist_range_ratio``, and ``shows`` / ``styled`` (rows whose style
+    shows, of the rows of a style other than Neutral)."""
     captures = {(r["model"], r["style"]): r for r in rows if r["path"] == "capture"}
     out = {}
     for model in dict.fromkeys(r["model"] for r in rows):
         mine = [(r, captures[(model, r["style"])]) for r in rows if r["model"] == model and r["path"] != "capture"]
         finite = [(r, c) for r, c in mine if r.get("finite", True)]
         steps = np.array([r["steps_per_s"] / c["steps_per_s"] for r, c in finite])
+        lifted = np.array([r.get("lifted_steps_per_s", np.nan) / c.get("lifted_steps_per_s", np.nan)
+                           for r, c in finite])
         styled = [r for r, _ in finite if r.get("style_shows") is not None]
         out[model] = {
             "rows": len(mine), "diverged": len(mine) - len(finite),
             "stalled": sum(bool(r.get("phases_stalled")) for r, _ in finite),
             "stepping": int(np.sum(np.abs(steps - 1.0) <= 0.25)),
+            "lifted_stepping": int(np.sum(np.abs(lifted - 1.0) <= 0.25)),
             "gliding": sum(r["contact_fraction"] > 0.95 >= c["contact_fraction"] for r, c in finite),
             "steps_ratio": float(np.median(steps)) if len(steps) else np.nan,
             "skating_ratio": float(np.median([r["foot_skating_m_s"] / c["foot_skating_m_s"] for r, c in finite]))

@@ -89,11 +89,11 @@ def exported(rollout: Frames, skeleton: Motion,
                     global_positions(pinned_feet(motion, rollout)), floor)
 
 
-LOCK_FIGURES = ("steps_per_s", "stance_fraction", "slide_per_contact_m", "steps_per_s_bvh", "ik_foot_offset_max_m",
-                "foot_below_floor_m")
-"""The stepping and foot-lock columns of :func:`measure` (``steps_per_s``, ``stance_fraction`` and
-``slide_per_contact_m`` of the locked skeleton, :func:`jaxstyle.output.metrics.step_figures`;
-``steps_per_s_bvh`` before locking)."""
+LOCK_FIGURES = ("steps_per_s", "stance_fraction", "slide_per_contact_m", "lifted_steps_per_s", "steps_per_s_bvh",
+                "ik_foot_offset_max_m", "foot_below_floor_m")
+"""The stepping and foot-lock columns of :func:`measure` (``steps_per_s``, ``stance_fraction``,
+``slide_per_contact_m`` and ``lifted_steps_per_s`` of the locked skeleton,
+:func:`jaxstyle.output.metrics.step_figures`; ``steps_per_s_bvh`` before locking)."""
 
 
 def measure(rollout: Frames, skeleton: Motion, signal: paths.PathSignal, *,

@@ -30,7 +30,7 @@ def _capture_of(rows: list[dict]) -> dict[tuple[str, str], dict]:
 
 LOCK_TARGETS = ("locked skating <= capture + 0.03", "foot offset <= 0.15 m", "foot below floor <= 0.01 m",
                 "steps/s within 25% of capture", "stance fraction within 0.15 of capture",
-                "locked ankle jerk <= 1.5x capture")
+                "locked ankle jerk <= 1.5x capture", "lifted steps/s within 25% of capture")
 """The foot-locking targets :func:`targets` checks (their names), beside
 :data:`jaxstyle.output.quality.PATH_TARGETS`."""
 
@@ -45,10 +45,11 @@ def targets(rows: list[dict]) -> list[dict]:
     "limit", "met"}``. Against the style's capture: raw skating (1.5x for base styles, 2x for
     few-shot) and :data:`LOCK_TARGETS` (skating after locking at most the capture's + 0.03 m/s,
     ``steps_per_s`` within 25% and ``stance_fraction`` within 0.15 of the capture's, ankle jerk
-    after locking at most 1.5x; the value of the two "within" targets is the difference from the
-    capture); on every row: no foot moved more than 0.15 m by the lock, none more than 1 cm below
-    the floor; final path error <= 0.3 m on straight, circle and zigzag, stop within 0.5 s, BVH bone
-    error 0; and for every style but Neutral :data:`STYLE_TARGET` (the style shows)."""
+    after locking at most 1.5x, ``lifted_steps_per_s`` within 25% of the capture's; the value of the
+    three "within" targets is the difference from the capture); on every row: no foot moved more
+    than 0.15 m by the lock, none more than 1 cm below the floor; final path error <= 0.3 m on
+    straight, circle and zigzag, stop within 0.5 s, BVH bone error 0; and for every style but
+    Neutral :data:`STYLE_TARGET` (the style shows)."""
     cap = _capture_of(rows)
     out = []
 
@@ -70,6 +71,8 @@ def targets(rows: list[dict]) -> list[dict]:
             add(LOCK_TARGETS[3], r, abs(steps - ref) / ref if ref > 0 else nan, 0.25)
             add(LOCK_TARGETS[4], r, abs(r.get("stance_fraction", nan) - c.get("stance_fraction", nan)), 0.15)
             add(LOCK_TARGETS[5], r, r["ankle_jerk_locked_m_s3"], 1.5 * c["ankle_jerk_m_s3"])
+            lifted, ref = r.get("lifted_steps_per_s", nan), c.get("lifted_steps_per_s", nan)
+            add(LOCK_TARGETS[6], r, abs(lifted - ref) / ref if ref > 0 else nan, 0.25)
             to_neutral = c.get("style_to_neutral", nan)
             if to_neutral is not None and np.isfinite(to_neutral) and to_neutral > 0:  # not Neutral itself
                 add(STYLE_TARGET, r, r.get("style_distance", nan), 0.5 * to_neutral)
