@@ -78,6 +78,7 @@ def _tiny(num_styles):
                             generator=film.FiLMConfig(filters=4, width=5, hidden=16, film_size=64))
 
 
+@pytest.mark.slow  # about 15 s: rollout training is an option outside the paper's recipe, off by default
 def test_rollout_loss_feeds_the_network_what_the_runtime_would(real):
     """Step 0 is batch_loss; step 1's input is the runtime's next input (lpn_controller.advance
     from a state at the captured row, the captured trajectory, the network's own joints and phases)."""
