@@ -176,6 +176,15 @@ def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     assert (run / "lpn" / "results.md").read_text().startswith("| new style | test MSE before | after @ 0.1 |")
     with np.load(run / "lpn" / "finetuned_generators.npz") as z:
         assert all(z[k].shape[:2] == (1, 1) for k in z.files)
+    # --seed: recorded, and another seed trains another model (its test losses differ)
+    losses = [line for line in out.splitlines() if line.startswith(("| Neutral |", "| Crouched |"))][:2]
+    run2 = tmp_path / "run2"
+    assert run_cli("lpn", "--data", tiny_data, "--run", run2, "--styles", "Neutral", "Crouched", "--new-styles",
+                   "Limping", "--gaits", "FW", "--epochs", 1, "--hidden", 8, "--generator-hidden", 16, "--filters", 4,
+                   "--finetune-steps", 0, "--seed", 1, "--quiet") == 0
+    out2 = capsys.readouterr().out
+    assert json.loads((run2 / "lpn" / "config.json").read_text())["train"]["seed"] == 1
+    assert len(losses) == 2 and not any(line in out2 for line in losses)
 
 
 def test_render_bvh_files(tiny_data, tmp_path, capsys):

@@ -87,6 +87,7 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
         want = {"foot_skating_m_s": skate(net), "foot_skating_bvh_m_s": skate(bvh_pos),
                 "foot_skating_locked_m_s": skate(fixed), "steps_per_s": steps.steps_per_s,
                 "stance_fraction": steps.stance_fraction, "slide_per_contact_m": steps.slide_per_contact_m,
+                "lifted_steps_per_s": steps.lifted_steps_per_s,
                 "steps_per_s_bvh": metrics.step_figures(bvh_pos, skeleton, fps).steps_per_s,
                 "ik_foot_offset_max_m": metrics.foot_offset_max_m(bvh_pos, fixed, skeleton, units_per_meter=upm),
                 "foot_below_floor_m": metrics.foot_below_floor_m(fixed, skeleton, footlock.skeleton_floor(skeleton),

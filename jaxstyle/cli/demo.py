@@ -76,6 +76,8 @@ def add_arguments(p) -> None:
     g.add_argument("--lpn-epochs", type=int, default=4,
                    help="training epochs of the 2022 model (paper: 90; after 2 the closed loop of most styles still "
                         "stalls, docs/mason2022.md)")
+    g.add_argument("--lpn-seed", type=int, default=0,
+                   help="training seed of the 2022 model: initial weights, dropout and batch order")
     g.add_argument("--learning-rate", type=finite, default=1e-3,
                    help="Adam learning rate of the 2022 model (demo: 1e-3 for its few epochs; paper and "
                         "`jaxstyle lpn`: 1e-4)")
@@ -180,7 +182,7 @@ def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
                 f"epochs at learning rate {args.learning_rate:g} (paper: 90 at 1e-4)")
     t0 = time.perf_counter()
     model = pipeline.train_model(data, config, run.dir / "lpn", name=name, epochs=args.lpn_epochs,
-                                 progress=progress(args), learning_rate=args.learning_rate)
+                                 progress=progress(args), learning_rate=args.learning_rate, seed=args.lpn_seed)
     run.say(f"{name} ready ({elapsed(t0)})")
     for line in report.losses_table(model.data.styles, pipeline.model_losses(model)):
         run.say(line)

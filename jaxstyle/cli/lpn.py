@@ -50,6 +50,8 @@ def add_arguments(p) -> None:
     p.add_argument("--gaits", nargs="+", help="gait codes (default: the locomotion gaits)")
     p.add_argument("--max-seconds", type=finite, help="use only the first seconds of each clip")
     p.add_argument("--epochs", type=int, default=6, help="training epochs (paper: 90)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="training seed: initial weights, dropout and batch order (recorded in RUN/lpn/config.json)")
     p.add_argument("--hidden", type=int, default=512, help="hidden units (paper: 512)")
     p.add_argument("--generator-hidden", type=int, default=2048, help="FiLM generator's dense units (paper: 2048)")
     p.add_argument("--filters", type=int, default=256, help="FiLM generator's convolution filters (paper: 256)")
@@ -129,7 +131,7 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
     config = pipeline.model_config(data.base, hidden=args.hidden, generator_hidden=args.generator_hidden,
                                    filters=args.filters)
     t0 = time.perf_counter()
-    model = pipeline.train_model(data, config, out, epochs=args.epochs, progress=progress(args),
+    model = pipeline.train_model(data, config, out, epochs=args.epochs, progress=progress(args), seed=args.seed,
                                  **_speed_options(args))
     run.say(f"LPN-FiLM ({args.hidden} hidden, {args.epochs} epochs, {int((data.base.split == 0).sum()):,} training "
             f"rows) ready in {elapsed(t0)}: {run.dir / 'lpn'}")
