@@ -168,9 +168,9 @@ def test_own_style_folder_without_csv_files(tiny_data, tmp_path, capsys):
 
 def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     run = tmp_path / "run"
-    assert run_cli("lpn", "--data", tiny_data, "--run", run, "--styles", "Neutral", "Crouched", "--new-styles",
-                   "Limping", "--gaits", "FW", "--epochs", 1, "--hidden", 8, "--generator-hidden", 16, "--filters", 4,
-                   "--finetune-steps", 2, "--rates", 0.1, "--quiet") == 0
+    tiny = ("--data", tiny_data, "--styles", "Neutral", "Crouched", "--new-styles", "Limping", "--gaits", "FW",
+            "--epochs", 1, "--hidden", 8, "--generator-hidden", 16, "--filters", 4, "--quiet")
+    assert run_cli("lpn", *tiny, "--run", run, "--finetune-steps", 2, "--rates", 0.1) == 0
     out = capsys.readouterr().out
     assert "| Neutral |" in out and "| Limping |" in out
     assert (run / "lpn" / "results.md").read_text().startswith("| new style | test MSE before | after @ 0.1 |")
@@ -179,9 +179,7 @@ def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     # --seed: recorded, and another seed trains another model (its test losses differ)
     losses = [line for line in out.splitlines() if line.startswith(("| Neutral |", "| Crouched |"))][:2]
     run2 = tmp_path / "run2"
-    assert run_cli("lpn", "--data", tiny_data, "--run", run2, "--styles", "Neutral", "Crouched", "--new-styles",
-                   "Limping", "--gaits", "FW", "--epochs", 1, "--hidden", 8, "--generator-hidden", 16, "--filters", 4,
-                   "--finetune-steps", 0, "--seed", 1, "--quiet") == 0
+    assert run_cli("lpn", *tiny, "--run", run2, "--finetune-steps", 0, "--seed", 1) == 0
     out2 = capsys.readouterr().out
     assert json.loads((run2 / "lpn" / "config.json").read_text())["train"]["seed"] == 1
     assert len(losses) == 2 and not any(line in out2 for line in losses)

@@ -188,12 +188,11 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
     return rows, files
 
 
-EXPORTED_FIGURES = ("foot_skating_bvh_m_s", "foot_skating_locked_m_s", "steps_per_s", "stance_fraction",
-                    "slide_per_contact_m", "lifted_steps_per_s", "steps_per_s_bvh", "ik_foot_offset_max_m",
-                    "foot_below_floor_m",
-                    "bone_error_bvh_max", "joint_difference_max_m", "heading_error_deg", "stop_time_s",
-                    "ankle_jerk_m_s3", "ankle_jerk_locked_m_s3")
-"""The columns :func:`write_results` adds from :func:`jaxstyle.output.measure.measure`; the real
+EXPORTED_FIGURES = ("foot_skating_bvh_m_s", "foot_skating_locked_m_s", *measure.LOCK_FIGURES, "bone_error_bvh_max",
+                    "joint_difference_max_m", "heading_error_deg", "stop_time_s", "ankle_jerk_m_s3",
+                    "ankle_jerk_locked_m_s3")
+"""The columns :func:`write_results` adds from :func:`jaxstyle.output.measure.measure` (its
+stepping and foot-lock columns are :data:`jaxstyle.output.measure.LOCK_FIGURES`); the real
 clips' rows have the figures of their own skeleton there."""
 
 
