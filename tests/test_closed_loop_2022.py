@@ -401,21 +401,45 @@ def test_pose_motion_is_zero_for_a_frozen_pose_whatever_the_root_does():
 
 
 def test_lpn_command_passes_the_training_options_outside_the_paper():
-    """`jaxstyle lpn`'s --input-noise, --rollout-steps and --contact-loss reach train_model only when
-    set (the defaults are the paper's recipe); a negative weight is refused by the parser."""
+    """`jaxstyle lpn`'s --input-noise, --feedback-noise, --rollout-steps and --contact-loss reach
+    train_model only when set (the defaults are the paper's recipe); a negative weight is refused by
+    the parser."""
     from jaxstyle.cli.lpn import _speed_options
     from jaxstyle.cli.main import build_parser
 
+    names = ("contact_loss_weight", "rollout_steps", "input_noise", "feedback_noise")
     parser, _ = build_parser()
     plain = _speed_options(parser.parse_args(["lpn", "--data", "d", "--run", "r"]))
-    assert not {"input_noise", "rollout_steps", "contact_loss_weight"} & set(plain)
+    assert not set(names) & set(plain)
     args = parser.parse_args(["lpn", "--data", "d", "--run", "r", "--contact-loss", "10", "--rollout-steps", "2",
-                              "--input-noise", "0.5"])
+                              "--input-noise", "0.5", "--feedback-noise", "0.25"])
     options = _speed_options(args)
-    assert (options["contact_loss_weight"], options["rollout_steps"], options["input_noise"]) == (10.0, 2, 0.5)
-    train_lpn.LPNTrainConfig(**{k: options[k] for k in ("contact_loss_weight", "rollout_steps", "input_noise")})
+    assert tuple(options[k] for k in names) == (10.0, 2, 0.5, 0.25)
+    train_lpn.LPNTrainConfig(**{k: options[k] for k in names})
     with pytest.raises(SystemExit):
         parser.parse_args(["lpn", "--data", "d", "--run", "r", "--contact-loss", "-1"])
+
+
+def test_feedback_noise_perturbs_the_joint_features_only():
+    """``feedback_noise`` puts noise on the columns the closed loop feeds back (the joint features
+    of the LPN layout) and none on the trajectory, which comes from the path; ``input_noise`` adds
+    to every column; the paper's recipe perturbs nothing."""
+    model = StyleModelConfig()
+    layout = LPNLayout.of_inputs(model.input_size)
+    joints = np.zeros(model.input_size, bool)
+    for name, columns in layout.input_groups.items():
+        joints[columns] = name.startswith("joint_")
+    assert joints.sum() == layout.joint_size and not joints[:model.input_size - layout.joint_size].any()
+    std = train_lpn.noise_std(train_lpn.LPNTrainConfig(model=model, feedback_noise=0.5, input_noise=0.1))
+    np.testing.assert_allclose(std, np.where(joints, 0.6, 0.1), rtol=1e-6)
+    assert not train_lpn.noise_std(train_lpn.LPNTrainConfig(model=model)).any()
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(4096, model.input_size)), jnp.float32)
+    only = train_lpn.noise_std(train_lpn.LPNTrainConfig(model=model, feedback_noise=0.5))
+    noisy = np.asarray(lpn_loss.noisy_inputs(x, jax.random.PRNGKey(0), jnp.asarray(only)))
+    np.testing.assert_array_equal(noisy[:, ~joints], np.asarray(x)[:, ~joints])
+    np.testing.assert_allclose((noisy - np.asarray(x))[:, joints].std(), 0.5, rtol=0.01)
+    with pytest.raises(ValueError, match="lpn backbone"):
+        train_lpn.noise_std(train_lpn.LPNTrainConfig(model=StyleModelConfig(backbone="pfnn"), feedback_noise=0.5))
 
 
 def test_foot_smooth_flag_is_a_fraction():

@@ -67,6 +67,9 @@ def add_arguments(p) -> None:
     p.add_argument("--bf16", action="store_true", help="bfloat16 products, float32 accumulation and weights")
     p.add_argument("--input-noise", type=non_negative, default=0.0,
                    help="std of Gaussian noise on the normalised inputs in training (not in the paper; 0: none)")
+    p.add_argument("--feedback-noise", type=non_negative, default=0.0,
+                   help="std of Gaussian noise on the normalised joint features only, the inputs the closed loop "
+                        "feeds back (not in the paper; 0: none; docs/mason2022.md, 'The closed loop: why it froze')")
     p.add_argument("--rollout-steps", type=int, default=0,
                    help="rollout training: each row starts a window of 1 + N frames fed the network's own outputs "
                         "(not in the paper; 0: none; docs/mason2022.md, 'The closed loop: why it froze')")
@@ -161,7 +164,7 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
 
 def _speed_options(args) -> dict:
     """``train_model`` options of --devices, --distributed, --batch-size, --bf16, --input-noise,
-    --rollout-steps and --contact-loss (defaults: the paper's batch 32 and rate 1e-4, float32, one
+    --feedback-noise, --rollout-steps and --contact-loss (defaults: the paper's batch 32 and rate 1e-4, float32, one
     device, no noise, no rollout training, no contact loss)."""
     from jaxstyle.mason2022 import train as train_lpn
     from jaxstyle.train import shard
@@ -183,6 +186,8 @@ def _speed_options(args) -> dict:
     options = {"devices": devices, "compute_dtype": "bfloat16" if args.bf16 else "float32"}
     if args.input_noise:
         options["input_noise"] = args.input_noise
+    if args.feedback_noise:
+        options["feedback_noise"] = args.feedback_noise
     if args.rollout_steps:
         options["rollout_steps"] = args.rollout_steps
     if args.contact_loss:

@@ -6,7 +6,8 @@ any of the seven models of :mod:`jaxstyle.nn.style_models`, on the rows of
   pass over the smallest style; :func:`jaxstyle.data.batching.balanced_batches`), Adam 1e-4, batch
   32, dropout 0.3, steps in jitted ``lax.scan`` chunks under a progress bar, per-epoch
   validation, orbax checkpoints with the config beside them, ``log.csv``; resumes. Options not in
-  the paper: noise on the inputs and rollout training (:mod:`jaxstyle.mason2022.loss`).
+  the paper: noise on the inputs (all of them, or only the joint features the closed loop feeds
+  back) and rollout training (:mod:`jaxstyle.mason2022.loss`).
 * :func:`evaluate`: per-style normalised MSE and bone-length loss, dropout off; a FiLM model uses
   each style's precomputed FiLM vector (the mean over its training clips, as at runtime).
 
@@ -26,6 +27,7 @@ import numpy as np
 import optax
 
 from jaxstyle.data.batching import balanced_batches
+from jaxstyle.data.lpn_features import LPNLayout
 from jaxstyle.mason2022.loss import Batch, LossWeights, batch_loss, positions_m, rollout_loss
 from jaxstyle.mason2022.styledata import BonePositions, StaticBones, StyleData, bones_of, device_arrays, rollout_starts
 from jaxstyle.nn import film_generator as film
@@ -40,7 +42,8 @@ class LPNTrainConfig:
     """Paper: batch 32, Adam 1e-4, dropout 0.3 everywhere, MSE + BLL weighted 1:1, 90 epochs.
 
     Not in the paper (0: its recipe): ``input_noise``, Gaussian noise on the normalised inputs
-    (:func:`jaxstyle.mason2022.loss.noisy_inputs`); ``rollout_steps``, rollout training: each
+    (:func:`jaxstyle.mason2022.loss.noisy_inputs`); ``feedback_noise``, the same noise on the joint
+    features only (:func:`noise_std`); ``rollout_steps``, rollout training: each
     batch row starts a window of ``1 + rollout_steps`` consecutive frames in which the network reads
     its own previous output (:func:`jaxstyle.mason2022.loss.rollout_loss`); ``contact_loss_weight``,
     the weight of :func:`jaxstyle.mason2022.loss.contact_loss` (planted feet do not move)."""
@@ -56,10 +59,33 @@ class LPNTrainConfig:
     input_noise: float = 0.0
     rollout_steps: int = 0
     contact_loss_weight: float = 0.0
+    feedback_noise: float = 0.0
 
 
 #: The options outside the paper's recipe, written to ``config.json`` only when set.
-EXTRA_OPTIONS = ("input_noise", "rollout_steps", "contact_loss_weight")
+EXTRA_OPTIONS = ("input_noise", "rollout_steps", "contact_loss_weight", "feedback_noise")
+
+
+def noise_std(config: LPNTrainConfig) -> np.ndarray:
+    """``(input_size,)`` standard deviation of the training noise on each normalised input column:
+    ``input_noise`` on every column, plus ``feedback_noise`` on the joint features (positions,
+    velocities, forward and up vectors of :class:`jaxstyle.data.lpn_features.LPNLayout`).
+
+    Not in the paper. At run time the joint features are the network's own previous output, while
+    the trajectory columns come from the user's path and are never the network's error, so noise on
+    the joint features alone imitates what the closed loop feeds back (the exposure-bias remedy
+    applied where the exposure is); ``input_noise`` also perturbs the trajectory. Only the LPN
+    backbone's layout is known here, so ``feedback_noise`` needs it."""
+    size = config.model.input_size
+    std = np.full(size, config.input_noise, np.float32)
+    if config.feedback_noise:
+        if config.model.backbone != "lpn":
+            raise ValueError(f"feedback_noise needs the lpn backbone's inputs, got {config.model.backbone!r}")
+        for name, columns in LPNLayout.of_inputs(size).input_groups.items():
+            if name.startswith("joint_"):
+                std[columns] += config.feedback_noise
+    return std
+
 
 PAPER_BATCH = 32
 
@@ -199,6 +225,7 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
     shard.check_batch(mesh, config.batch_size)
     arrays = shard.replicate(device_arrays(data), mesh)
     bones = StaticBones(data.bones)
+    noise = shard.replicate(jnp.asarray(noise_std(config)), mesh)
 
     def plan_epoch(epoch):
         batches, styles, clips = epoch_batches(data, config, epoch)
@@ -211,7 +238,7 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
             params, opt_state, out = _train_chunk(
                 params, opt_state, arrays, batches_dev[a:b], styles_dev[a:b], clips_dev[a:b], keys[a:b],
                 jnp.float32(config.dropout_rate), jnp.float32(config.bone_loss_weight),
-                jnp.float32(config.input_noise), feedback,
+                noise, feedback,
                 jnp.float32(config.contact_loss_weight) if config.contact_loss_weight else None,
                 config=config.model, bones=bones,
                 learning_rate=config.learning_rate, compute_dtype=compute_dtype, rollout_steps=config.rollout_steps)
