@@ -425,11 +425,8 @@ def test_feedback_noise_perturbs_the_joint_features_only():
     of the LPN layout) and none on the trajectory, which comes from the path; ``input_noise`` adds
     to every column; the paper's recipe perturbs nothing."""
     model = StyleModelConfig()
-    layout = LPNLayout.of_inputs(model.input_size)
-    joints = np.zeros(model.input_size, bool)
-    for name, columns in layout.input_groups.items():
-        joints[columns] = name.startswith("joint_")
-    assert joints.sum() == layout.joint_size and not joints[:model.input_size - layout.joint_size].any()
+    # the input row is the trajectory (past and future samples) followed by the joint features
+    joints = np.arange(model.input_size) >= model.input_size - LPNLayout.of_inputs(model.input_size).joint_size
     std = train_lpn.noise_std(train_lpn.LPNTrainConfig(model=model, feedback_noise=0.5, input_noise=0.1))
     np.testing.assert_allclose(std, np.where(joints, 0.6, 0.1), rtol=1e-6)
     assert not train_lpn.noise_std(train_lpn.LPNTrainConfig(model=model)).any()
