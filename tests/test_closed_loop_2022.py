@@ -401,23 +401,26 @@ def test_pose_motion_is_zero_for_a_frozen_pose_whatever_the_root_does():
 
 
 def test_lpn_command_passes_the_training_options_outside_the_paper():
-    """`jaxstyle lpn`'s --input-noise, --feedback-noise, --rollout-steps and --contact-loss reach
-    train_model only when set (the defaults are the paper's recipe); a negative weight is refused by
-    the parser."""
+    """`jaxstyle lpn`'s --input-noise, --feedback-noise, --rollout-steps, --contact-loss and
+    --average-epochs reach train_model only when set (the defaults are the paper's recipe); a
+    negative weight is refused by the parser, a negative epoch count in one line."""
+    from jaxstyle.cli.common import CLIError
     from jaxstyle.cli.lpn import _speed_options
     from jaxstyle.cli.main import build_parser
 
-    names = ("contact_loss_weight", "rollout_steps", "input_noise", "feedback_noise")
+    names = ("contact_loss_weight", "rollout_steps", "input_noise", "feedback_noise", "average_epochs")
     parser, _ = build_parser()
     plain = _speed_options(parser.parse_args(["lpn", "--data", "d", "--run", "r"]))
     assert not set(names) & set(plain)
     args = parser.parse_args(["lpn", "--data", "d", "--run", "r", "--contact-loss", "10", "--rollout-steps", "2",
-                              "--input-noise", "0.5", "--feedback-noise", "0.25"])
+                              "--input-noise", "0.5", "--feedback-noise", "0.25", "--average-epochs", "3"])
     options = _speed_options(args)
-    assert tuple(options[k] for k in names) == (10.0, 2, 0.5, 0.25)
+    assert tuple(options[k] for k in names) == (10.0, 2, 0.5, 0.25, 3)
     train_lpn.LPNTrainConfig(**{k: options[k] for k in names})
     with pytest.raises(SystemExit):
         parser.parse_args(["lpn", "--data", "d", "--run", "r", "--contact-loss", "-1"])
+    with pytest.raises(CLIError, match="--average-epochs"):
+        _speed_options(parser.parse_args(["lpn", "--data", "d", "--run", "r", "--average-epochs", "-2"]))
 
 
 def test_feedback_noise_perturbs_the_joint_features_only():

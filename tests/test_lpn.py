@@ -304,6 +304,30 @@ def test_training_lowers_the_loss_and_resumes_exactly(tmp_path, modulation):
     assert log[0].startswith("epoch,train_loss,train_mse,train_bll,val_mse,val_bll") and len(log) == 5
 
 
+def test_averaged_epochs_are_the_mean_of_the_last_epochs_weights(tmp_path):
+    """``average_epochs=4`` over 5 epochs: the trained and the loaded parameters are the mean of
+    epochs 2-5's, taken from a plain run stopped after every epoch (the same training); the
+    paper's setting loads the last epoch's; without a run folder it is refused."""
+    data = synthetic_data()
+    plain = train_lpn.LPNTrainConfig(model=small_config(), epochs=5, batch_size=8, learning_rate=3e-3, log_every=5)
+    per_epoch = [train_lpn.train(data, plain, tmp_path / "plain", progress=False, stop_after_epochs=1).params
+                 for _ in range(5)]
+    want = jax.tree.map(lambda *a: np.mean(np.stack([np.asarray(x, np.float64) for x in a[1:]]), axis=0), *per_epoch)
+    averaged = dataclasses.replace(plain, average_epochs=4)
+    trained = train_lpn.train(data, averaged, tmp_path / "avg", progress=False)
+    loaded = train_lpn.load(tmp_path / "avg", averaged, data.styles)
+    assert len(list((tmp_path / "avg" / "steps").iterdir())) == 4  # the 4 epochs averaged are kept
+    for got in (trained.params, loaded.params):
+        jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6), got, want)
+    assert int(loaded.epoch) == 5
+    last = train_lpn.load(tmp_path / "plain", plain, data.styles)
+    jax.tree.map(lambda a, b: np.testing.assert_array_equal(a, b), last.params, per_epoch[-1])
+    assert max(float(np.max(np.abs(np.asarray(a) - b))) for a, b in  # the mean differs from the last
+               zip(jax.tree.leaves(per_epoch[-1]), jax.tree.leaves(want), strict=True)) > 1e-4
+    with pytest.raises(ValueError, match="run directory"):
+        train_lpn.train(data, averaged, progress=False)
+
+
 def test_evaluate_matches_a_direct_computation():
     data = synthetic_data()
     config = small_config("lpn", "resad")

@@ -76,6 +76,9 @@ def add_arguments(p) -> None:
     p.add_argument("--contact-loss", type=non_negative, default=0.0,
                    help="weight of the loss on planted feet moving, in metres per frame (not in the paper; 0: none; "
                         "docs/mason2022.md, 'Feet that slide')")
+    p.add_argument("--average-epochs", type=int, default=0,
+                   help="the model is the mean of the last N epochs' weights (not in the paper; 0 or 1: the last "
+                        "epoch's; docs/mason2022.md, 'Averaged weights')")
     add_joint_map_arg(p)
     add_distributed_args(p)
     add_common(p)
@@ -164,8 +167,8 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
 
 def _speed_options(args) -> dict:
     """``train_model`` options of --devices, --distributed, --batch-size, --bf16, --input-noise,
-    --feedback-noise, --rollout-steps and --contact-loss (defaults: the paper's batch 32 and rate 1e-4, float32, one
-    device, no noise, no rollout training, no contact loss)."""
+    --feedback-noise, --rollout-steps, --contact-loss and --average-epochs (defaults: the paper's batch 32 and rate
+    1e-4, float32, one device, no noise, no rollout training, no contact loss, the last epoch's weights)."""
     from jaxstyle.mason2022 import train as train_lpn
     from jaxstyle.train import shard
 
@@ -183,6 +186,8 @@ def _speed_options(args) -> dict:
         devices = "all"  # every process's devices
     if args.rollout_steps < 0:
         raise CLIError(f"--rollout-steps must be >= 0, got {args.rollout_steps}")
+    if args.average_epochs < 0:
+        raise CLIError(f"--average-epochs must be >= 0, got {args.average_epochs}")
     options = {"devices": devices, "compute_dtype": "bfloat16" if args.bf16 else "float32"}
     if args.input_noise:
         options["input_noise"] = args.input_noise
@@ -192,6 +197,8 @@ def _speed_options(args) -> dict:
         options["rollout_steps"] = args.rollout_steps
     if args.contact_loss:
         options["contact_loss_weight"] = args.contact_loss
+    if args.average_epochs > 1:
+        options["average_epochs"] = args.average_epochs
     if args.batch_size != train_lpn.PAPER_BATCH:
         scaled = train_lpn.with_batch_size(train_lpn.LPNTrainConfig(), args.batch_size)
         options.update(batch_size=scaled.batch_size, learning_rate=scaled.learning_rate)

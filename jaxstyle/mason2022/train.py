@@ -46,7 +46,9 @@ class LPNTrainConfig:
     features only (:func:`noise_std`); ``rollout_steps``, rollout training: each
     batch row starts a window of ``1 + rollout_steps`` consecutive frames in which the network reads
     its own previous output (:func:`jaxstyle.mason2022.loss.rollout_loss`); ``contact_loss_weight``,
-    the weight of :func:`jaxstyle.mason2022.loss.contact_loss` (planted feet do not move)."""
+    the weight of :func:`jaxstyle.mason2022.loss.contact_loss` (planted feet do not move);
+    ``average_epochs``, the model is the mean of the weights after each of the last
+    ``average_epochs`` epochs (:func:`averaged_params`; 0 or 1: the last epoch's, the paper's)."""
 
     model: StyleModelConfig = StyleModelConfig()
     epochs: int = 90
@@ -60,10 +62,11 @@ class LPNTrainConfig:
     rollout_steps: int = 0
     contact_loss_weight: float = 0.0
     feedback_noise: float = 0.0
+    average_epochs: int = 0
 
 
 #: The options outside the paper's recipe, written to ``config.json`` only when set.
-EXTRA_OPTIONS = ("input_noise", "rollout_steps", "contact_loss_weight", "feedback_noise")
+EXTRA_OPTIONS = ("input_noise", "rollout_steps", "contact_loss_weight", "feedback_noise", "average_epochs")
 
 
 def noise_std(config: LPNTrainConfig) -> np.ndarray:
@@ -189,10 +192,10 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
           devices: str | int | None = None) -> ModelState:
     """Train (or resume) a style model; returns the final :class:`ModelState`.
 
-    ``directory`` keeps ``config.json``, orbax checkpoints (one per epoch, the last 3 kept) and
-    ``log.csv`` (train loss, MSE and BLL, validation MSE and BLL, seconds per epoch); a second call
-    with the same directory resumes from the last checkpoint. ``stop_after_epochs`` ends the call
-    early (to test resuming).
+    ``directory`` keeps ``config.json``, orbax checkpoints (one per epoch, the last 3 kept, or the
+    last ``config.average_epochs`` when more) and ``log.csv`` (train loss, MSE and BLL, validation
+    MSE and BLL, seconds per epoch); a second call with the same directory resumes from the last
+    checkpoint. ``stop_after_epochs`` ends the call early (to test resuming).
 
     ``compute_dtype="bfloat16"``: the layer products in bfloat16, accumulated in float32, float32
     master weights and Adam (an option, not the paper's setting; recorded in ``config.json``).
@@ -203,9 +206,19 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
 
     ``config.rollout_steps > 0``: batches are drawn from the training rows that start a whole
     window (:func:`jaxstyle.mason2022.styledata.rollout_starts`) and each step is
-    :func:`jaxstyle.mason2022.loss.rollout_loss`."""
+    :func:`jaxstyle.mason2022.loss.rollout_loss`.
+
+    ``config.average_epochs > 1``: the returned parameters are the mean of the last epochs' saved
+    ones (:func:`averaged_params`; the checkpoints keep the last epoch's training state, so a run
+    resumes as without it); it needs ``directory``."""
     if config.model.num_styles != len(data.styles):
         raise ValueError(f"the model has {config.model.num_styles} styles, the data {len(data.styles)}")
+    if config.average_epochs < 0 or (config.average_epochs > 1 and directory is None):
+        raise ValueError(f"average_epochs must be >= 0 and, above 1, needs a run directory to keep the epochs' "
+                         f"weights (got {config.average_epochs}, directory {directory})")
+    if config.average_epochs > 1 and jax.process_count() > 1:
+        raise ValueError("average_epochs above 1 reads every kept epoch back from the run folder, which only the first "
+                         "of several processes writes: train with one process, or average when loading (load)")
     mesh = shard.data_mesh(devices)
     if config.contact_loss_weight and data.bones.contact is None:
         raise ValueError("contact_loss_weight needs the feet of the skeleton: build the data with style_data")
@@ -255,10 +268,39 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
     state = scan.fit(init_state(jax.random.PRNGKey(config.seed), config), config.epochs, plan_epoch,
                      directory=directory, run_config=_run_config(config, data.styles, compute_dtype),
                      end_epoch=end_epoch, options=scan.FitOptions(log_every=config.log_every, progress=progress,
-                                                                   stop_after_epochs=stop_after_epochs))
+                                                                   stop_after_epochs=stop_after_epochs,
+                                                                   keep=max(3, config.average_epochs)))
     if jax.process_count() > 1:  # replicated over several processes: this process's copy, for what follows
         state = jax.tree.map(jnp.asarray, shard.gather(state))
+    if config.average_epochs > 1:
+        ckpt = Checkpointer(directory, _run_config(config, data.styles, compute_dtype),
+                            max_to_keep=max(3, config.average_epochs))
+        try:
+            state = state._replace(params=averaged_params(ckpt, state, config.average_epochs))
+        finally:
+            ckpt.close()
     return state
+
+
+def averaged_params(ckpt: Checkpointer, state: ModelState, epochs: int) -> dict:
+    """The mean of the parameters saved after each of the last ``epochs`` epochs up to
+    ``state.epoch`` (fewer when fewer were saved) in ``ckpt``: checkpoint averaging (Vaswani et al.
+    2017, section 6.1, averaged the last checkpoints of their models), not in the 2022 paper.
+
+    Why: at the paper's size the closed loop changes from one epoch to the next as much as
+    between two seeds; on the four paper-size runs measured, the mean of the last three epochs'
+    weights slid less than the last epoch's (and reached the path's end on more rows on three), but
+    showed the styles less (docs/mason2022.md, "Averaged weights"), so it is an option. The mean is taken in float32.
+    The parameters come back with ``state.params``' dtypes."""
+    done = int(state.epoch)
+    steps = [s for s in ckpt.all_steps() if s <= done][-max(epochs, 1):]
+    if not steps:
+        raise FileNotFoundError(f"no checkpoint up to epoch {done} in {ckpt.directory}")
+    total = None
+    for step in steps:
+        params = jax.tree.map(lambda a: np.asarray(a, np.float32), ckpt.restore(state, step=step).params)
+        total = params if total is None else jax.tree.map(np.add, total, params)
+    return jax.tree.map(lambda a, like: jnp.asarray(a / len(steps), jnp.asarray(like).dtype), total, state.params)
 
 
 def _run_config(config: LPNTrainConfig, styles: Sequence[str], compute_dtype: str = "float32") -> dict:
@@ -275,10 +317,15 @@ def _run_config(config: LPNTrainConfig, styles: Sequence[str], compute_dtype: st
 
 def load(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str], *,
          compute_dtype: str = "float32") -> ModelState:
-    """The last checkpoint of a :func:`train` run folder."""
-    ckpt = Checkpointer(directory, _run_config(config, styles, compute_dtype))
+    """The last checkpoint of a :func:`train` run folder (its parameters the mean of the last
+    ``config.average_epochs`` epochs' when that is above 1, :func:`averaged_params`)."""
+    ckpt = Checkpointer(directory, _run_config(config, styles, compute_dtype),
+                        max_to_keep=max(3, config.average_epochs))
     try:
-        return ckpt.restore(init_state(jax.random.PRNGKey(config.seed), config))
+        state = ckpt.restore(init_state(jax.random.PRNGKey(config.seed), config))
+        if config.average_epochs > 1:
+            state = state._replace(params=averaged_params(ckpt, state, config.average_epochs))
+        return state
     finally:
         ckpt.close()
 

@@ -325,6 +325,7 @@ class FitOptions:
       say: where the line ``resumed from step N in DIR`` goes when a checkpoint is resumed
         (default ``print``; ``None`` for silence). A damaged newest step is a warning naming it and
         the step used instead; it is moved to ``DIR/damaged/`` so the resumed run can write it again.
+      keep: how many of the newest epochs' checkpoints are kept.
     """
 
     log_every: int = 50
@@ -332,6 +333,7 @@ class FitOptions:
     stop_after_epochs: int | None = None
     check_finite: bool = True
     say: Callable[[str], None] | None = print
+    keep: int = 3
 
 
 def fit(state: Any, epochs: int, plan_epoch: Callable[[int], tuple[int, Callable]], *,
@@ -350,7 +352,7 @@ def fit(state: Any, epochs: int, plan_epoch: Callable[[int], tuple[int, Callable
         steps ``a..b-1`` of the epoch (one compiled ``lax.scan``) and returns the new state and
         the per-step losses ``(b - a,)`` or ``(b - a, K)`` (column 0 the training loss).
       directory: the run folder: ``config.json`` (``run_config``), orbax checkpoints (one per
-        epoch, the last 3 kept) and ``log.csv``; ``None`` keeps nothing.
+        epoch, the last ``options.keep`` kept) and ``log.csv``; ``None`` keeps nothing.
       end_epoch: ``end_epoch(epoch, state, losses_TxK) -> row``, the epoch's ``log.csv`` columns
         after ``epoch`` (e.g. validation losses), called with a directory only; ``fit`` fills
         ``"seconds"`` (at the row's ``"seconds"`` key if present, else last).
@@ -358,7 +360,7 @@ def fit(state: Any, epochs: int, plan_epoch: Callable[[int], tuple[int, Callable
     """
     log_every, progress, stop_after_epochs = options.log_every, options.progress, options.stop_after_epochs
     check_finite, say = options.check_finite, options.say
-    ckpt = Checkpointer(directory, run_config) if directory is not None else None
+    ckpt = Checkpointer(directory, run_config, max_to_keep=options.keep) if directory is not None else None
     try:
         if ckpt is not None and ckpt.latest_step() is not None:
             state = ckpt.restore(state)
