@@ -269,12 +269,11 @@ def train(data: StyleData, config: LPNTrainConfig, directory: str | Path | None 
                      directory=directory, run_config=_run_config(config, data.styles, compute_dtype),
                      end_epoch=end_epoch, options=scan.FitOptions(log_every=config.log_every, progress=progress,
                                                                    stop_after_epochs=stop_after_epochs,
-                                                                   keep=max(3, config.average_epochs)))
+                                                                   keep=_kept_epochs(config)))
     if jax.process_count() > 1:  # replicated over several processes: this process's copy, for what follows
         state = jax.tree.map(jnp.asarray, shard.gather(state))
     if config.average_epochs > 1:
-        ckpt = Checkpointer(directory, _run_config(config, data.styles, compute_dtype),
-                            max_to_keep=max(3, config.average_epochs))
+        ckpt = _checkpointer(directory, config, data.styles, compute_dtype)
         try:
             state = state._replace(params=averaged_params(ckpt, state, config.average_epochs))
         finally:
@@ -291,16 +290,29 @@ def averaged_params(ckpt: Checkpointer, state: ModelState, epochs: int) -> dict:
     between two seeds; on the four paper-size runs measured, the mean of the last three epochs'
     weights slid less than the last epoch's (and reached the path's end on more rows on three), but
     showed the styles less (docs/mason2022.md, "Averaged weights"), so it is an option. The mean is taken in float32.
-    The parameters come back with ``state.params``' dtypes."""
+    The parameters come back with ``state.params``' dtypes; ``state`` is the one saved at epoch
+    ``state.epoch`` (the callers' newest restored or trained state), so that step is not read again."""
     done = int(state.epoch)
     steps = [s for s in ckpt.all_steps() if s <= done][-max(epochs, 1):]
     if not steps:
         raise FileNotFoundError(f"no checkpoint up to epoch {done} in {ckpt.directory}")
     total = None
     for step in steps:
-        params = jax.tree.map(lambda a: np.asarray(a, np.float32), ckpt.restore(state, step=step).params)
+        saved = state.params if step == done else ckpt.restore(state, step=step).params
+        params = jax.tree.map(lambda a: np.asarray(a, np.float32), saved)
         total = params if total is None else jax.tree.map(np.add, total, params)
     return jax.tree.map(lambda a, like: jnp.asarray(a / len(steps), jnp.asarray(like).dtype), total, state.params)
+
+
+def _kept_epochs(config: LPNTrainConfig) -> int:
+    """How many epochs' checkpoints a run folder keeps: 3, or the epochs averaged when more."""
+    return max(3, config.average_epochs)
+
+
+def _checkpointer(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str],
+                  compute_dtype: str = "float32") -> Checkpointer:
+    """The :class:`Checkpointer` of a :func:`train` run folder (its config, its kept epochs)."""
+    return Checkpointer(directory, _run_config(config, styles, compute_dtype), max_to_keep=_kept_epochs(config))
 
 
 def _run_config(config: LPNTrainConfig, styles: Sequence[str], compute_dtype: str = "float32") -> dict:
@@ -319,8 +331,7 @@ def load(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str], *
          compute_dtype: str = "float32") -> ModelState:
     """The last checkpoint of a :func:`train` run folder (its parameters the mean of the last
     ``config.average_epochs`` epochs' when that is above 1, :func:`averaged_params`)."""
-    ckpt = Checkpointer(directory, _run_config(config, styles, compute_dtype),
-                        max_to_keep=max(3, config.average_epochs))
+    ckpt = _checkpointer(directory, config, styles, compute_dtype)
     try:
         state = ckpt.restore(init_state(jax.random.PRNGKey(config.seed), config))
         if config.average_epochs > 1:
