@@ -173,14 +173,20 @@ def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     assert run_cli("lpn", *tiny, "--run", run, "--finetune-steps", 2, "--rates", 0.1) == 0
     out = capsys.readouterr().out
     assert "| Neutral |" in out and "| Limping |" in out
-    assert (run / "lpn" / "results.md").read_text().startswith("| new style | test MSE before | after @ 0.1 |")
+    results = (run / "lpn" / "results.md").read_text()
+    assert results.startswith("| new style | test MSE before | after @ 0.1 |")
+    # the closing check: every style walked, said and written (its rows: test_synthesis_lpn.py)
+    check = results[results.index("closed loop of every style: 8 s along a straight line"):].splitlines()
+    assert [line.split(" | ")[0].split(" ")[1] for line in check[4:7]] == ["Crouched", "Neutral", "Limping"]
+    assert check[-1].startswith(("not stepping (lifted steps under 0.5", "every style steps")) and check[-1] in out
     with np.load(run / "lpn" / "finetuned_generators.npz") as z:
         assert all(z[k].shape[:2] == (1, 1) for k in z.files)
     # --seed: recorded, and another seed trains another model (its test losses differ)
     losses = [line for line in out.splitlines() if line.startswith(("| Neutral |", "| Crouched |"))][:2]
     run2 = tmp_path / "run2"
-    assert run_cli("lpn", *tiny, "--run", run2, "--finetune-steps", 0, "--seed", 1) == 0
+    assert run_cli("lpn", *tiny, "--run", run2, "--finetune-steps", 0, "--seed", 1, "--no-style-check") == 0
     out2 = capsys.readouterr().out
+    assert "closed loop of every style" not in out2
     assert json.loads((run2 / "lpn" / "config.json").read_text())["train"]["seed"] == 1
     assert len(losses) == 2 and not any(line in out2 for line in losses)
 

@@ -116,20 +116,22 @@ def test_every_command_module_is_a_thin_parser_and_run():
             "render", "bench"} <= set(subs)
 
 
-def _row(model, style, path, steps, skating, contact, distance=1.0, shows=None, stalled=False, finite=True):
+def _row(model, style, path, steps, skating, contact, distance=1.0, shows=None, stalled=False, finite=True,
+         not_stepping=False):
     return {"model": model, "style": style, "path": path, "steps_per_s": steps, "foot_skating_m_s": skating,
             "contact_fraction": contact, "style_distance": distance, "wrist_range_ratio": 0.5, "style_shows": shows,
-            "phases_stalled": stalled, "finite": finite}
+            "phases_stalled": stalled, "finite": finite, "not_stepping": not_stepping}
 
 
 def test_closed_loop_figures_tell_stepping_from_gliding():
     caps = [_row(m, s, "capture", 2.0, 0.1, 0.6) for m in ("LPN FiLM", "PFNN One-hot") for s in ("Drunk", "Angry")]
     rows = caps + [
         _row("LPN FiLM", "Drunk", "straight", 2.2, 0.2, 0.7, 0.3, shows=True),     # steps, 2x skating
-        _row("LPN FiLM", "Angry", "straight", 0.2, 0.9, 0.99, 2.0, shows=False, stalled=True),  # glides
-        _row("LPN FiLM", "Angry", "circle", np.nan, np.nan, np.nan, finite=False),  # diverged: left out
+        _row("LPN FiLM", "Angry", "straight", 0.2, 0.9, 0.99, 2.0, shows=False, stalled=True,
+             not_stepping=True),  # glides
+        _row("LPN FiLM", "Angry", "circle", np.nan, np.nan, np.nan, finite=False, not_stepping=True),  # left out
         _row("PFNN One-hot", "Drunk", "straight", 1.4, 0.4, 0.8, 0.5, shows=True),  # 0.7x: not within 25%
-        _row("PFNN One-hot", "Angry", "straight", 2.4, 0.5, 0.96, 0.7, shows=True)]  # 1.2x, feet down 96%
+        _row("PFNN One-hot", "Angry", "straight", 2.4, 0.5, 0.96, 0.7, shows=True, not_stepping=True)]  # 1.2x, 96%
     for r, ratio in zip(rows[4:6], (1.0, 0.1), strict=True):  # the LPN's local phases: one stalled
         r["phase_rate_ratio"] = ratio
     for r in rows:  # lifted steps: the captures' 2.0 a second, Drunk's 2.2 onsets only 1.0 lifted (a slide)
@@ -139,15 +141,16 @@ def test_closed_loop_figures_tell_stepping_from_gliding():
     assert lpn["phase_rate_ratio"] == pytest.approx(0.55) and np.isnan(pfnn["phase_rate_ratio"])  # none: NaN
     assert (lpn["rows"], lpn["diverged"], lpn["stepping"], lpn["gliding"], lpn["stalled"]) == (3, 1, 1, 1, 1)
     assert (pfnn["rows"], pfnn["stepping"], pfnn["gliding"], pfnn["stalled"]) == (2, 1, 1, 0)
+    assert (lpn["not_stepping"], pfnn["not_stepping"]) == (1, 1)  # the diverged row's flag is not counted
     assert (lpn["lifted_stepping"], pfnn["lifted_stepping"]) == (0, 1)
     np.testing.assert_allclose([lpn["steps_ratio"], lpn["skating_ratio"], lpn["style_distance"]],
                                [np.median([1.1, 0.1]), np.median([2.0, 9.0]), np.median([0.3, 2.0])])
     np.testing.assert_allclose([pfnn["steps_ratio"], pfnn["skating_ratio"]], [np.median([0.7, 1.2]), 4.5])
     assert (lpn["shows"], lpn["styled"], pfnn["shows"], pfnn["styled"]) == (1, 2, 2, 2)
     table = report.closed_loop_table(f, {"LPN FiLM": {"mse": np.array([0.1]), "bll": np.array([0.01])}})
-    assert table[2].startswith("| LPN FiLM | 0.1100 | 1 / 2 | 0.60 | 1 / 2 | 1 / 2 | 5.5 | 1.15 | 1 / 2 | 0.50 |"
-                               " 1 / 3 |")
-    assert table[3].startswith("| PFNN One-hot | - | 1 / 2 |")
+    assert table[2].startswith("| LPN FiLM | 0.1100 | 1, 0 / 2 | 0.60 | 1 / 2 | 1 / 2 | 1 / 2 | 5.5 | 1.15 | 1 / 2 |"
+                               " 0.50 | 1 / 3 |")
+    assert table[3].startswith("| PFNN One-hot | - | 1, 1 / 2 |")
     lines = report.closed_loop_ordering_lines(f)
     assert lines[0] == "LPN FiLM most rows stepping within 25% of the capture: holds (LPN FiLM 1)"  # a tie holds
     assert lines[1] == ("LPN FiLM lowest median raw skating / capture: does not hold (LPN FiLM 5.50, best PFNN One-hot "

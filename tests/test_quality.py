@@ -112,10 +112,17 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
         for k, v in style_lib.style_distance(shown, captured).items():
             np.testing.assert_allclose(row[k], v, rtol=2e-3, atol=2e-4, equal_nan=True, err_msg=f"{p}: {k}")
         np.testing.assert_allclose(row["wrist_range_ratio"], shown.wrist_range_m / captured.wrist_range_m, rtol=2e-3)
+        # lifted steps per second of the frames the path moves, over the capture's
+        moving_s = np.count_nonzero(np.linalg.norm(sig.velocity, axis=1) > 1e-6) / fps
+        cap_lifted = metrics.step_figures(js.global_positions(cap), cap, cap.fps).lifted_steps_per_s
+        np.testing.assert_allclose(row["lifted_step_ratio"],
+                                   steps.lifted_steps_per_s * len(fixed) / fps / moving_s / cap_lifted, rtol=2e-3)
+        assert row["not_stepping"] == bool(row["lifted_step_ratio"] < quality.STEP_RATIO)
         # `jaxstyle synthesize` reports the exported skeleton's figures too, by the same function
         srow = next(r for r in synth.rows if (r["style"], r["path"]) == (style, p))
-        for k in EXPORTED_FIGURES:
+        for k in (*EXPORTED_FIGURES, "lifted_step_ratio"):
             np.testing.assert_allclose(srow[k], row[k], rtol=1e-6, equal_nan=True, err_msg=k)
+        assert srow["not_stepping"] == row["not_stepping"]
         if p == "stop_and_go":
             assert len(stops) == 1  # its stop command at 2 s
     # the capture row: the style's first walking clip, by forward kinematics
@@ -131,6 +138,44 @@ def test_lpn_characters_are_measured_like_the_2018_ones(loaded, tmp_path):
     skating = [c for c in checks if c["target"].startswith("raw skating")]
     assert [c["model"] for c in skating] == ["LPN FiLM"] * 8
     np.testing.assert_allclose(skating[0]["limit"], 1.5 * cap["foot_skating_m_s"])
+
+
+def test_a_pose_frozen_while_its_root_walks_is_marked_not_stepping(tmp_path):
+    """The lifted-step figure on a real step count: a procedural walk against its own capture reads
+    1 on a path that always moves and on one that stands a third of the time with no step there;
+    the same clip's first pose carried along by the root (frozen legs, phases irrelevant) reads 0
+    and is marked in the table; no figure without lifted steps or without motion."""
+    root = procedural.write_dataset(tmp_path / "data", styles=["Neutral"], gaits=("FW",), seconds=6, progress=False)
+    clip = js.read_bvh(root / "Neutral" / "Neutral_FW.bvh")
+    pos, fps = js.global_positions(clip), clip.fps
+    walk = metrics.step_figures(pos, clip, fps).lifted_steps_per_s
+    assert walk > 1.0  # the generated walk lifts its feet: the reference is a real count
+    T = len(pos)
+    moving = paths.straight(T / fps, 1.0, fps=fps)
+    f = quality.stepping_figures({"lifted_steps_per_s": walk}, moving, walk)
+    assert f["lifted_step_ratio"] == pytest.approx(1.0) and f["not_stepping"] is False
+    # standing a third of the frames: the same steps over two thirds of the time read the same rate
+    go = paths.stop_and_go(T / fps, 1.0, fps=fps, go=2.0, stop=1.0)
+    share = np.count_nonzero(np.linalg.norm(go.velocity, axis=1) > 0) / T
+    f = quality.stepping_figures({"lifted_steps_per_s": walk * share}, go, walk)
+    assert f["lifted_step_ratio"] == pytest.approx(1.0) and f["not_stepping"] is False
+    # the first pose carried along the root's horizontal path: the legs never leave the floor
+    frozen = pos[:1] + (pos[:, :1] - pos[:1, :1]) * np.array([1.0, 0.0, 1.0])
+    lifted = metrics.step_figures(frozen, clip, fps).lifted_steps_per_s
+    row = {"model": "LPN FiLM", "style": "Neutral", "path": "straight", "lifted_steps_per_s": lifted,
+           **quality.stepping_figures({"lifted_steps_per_s": lifted}, moving, walk)}
+    assert lifted == 0.0 and row["lifted_step_ratio"] == 0.0 and row["not_stepping"] is True
+    assert report.stalled_mark(row) == f" {quality.NOT_STEPPING_MARK}"
+    assert report.stalled_mark({**row, "not_stepping": "True", "phases_stalled": "True"}) == (
+        f" {quality.STALLED_MARK} {quality.NOT_STEPPING_MARK}")  # CSV rows: strings
+    assert quality.NOT_STEPPING_MARK in synthesis.quality_table([{**row, "bone_error_mean": 0.0,
+                                                                  "bone_error_max": 0.0}])[2]
+    standing = paths.from_velocity(np.zeros((T, 2)), fps)
+    for r, sig, ref in (({"lifted_steps_per_s": np.nan}, moving, walk), ({"lifted_steps_per_s": 1.0}, standing, walk),
+                        ({"lifted_steps_per_s": 1.0}, moving, 0.0)):
+        f = quality.stepping_figures(r, sig, ref)
+        assert np.isnan(f["lifted_step_ratio"]) and f["not_stepping"] is None
+    assert report.stalled_mark({"not_stepping": None}) == ""
 
 
 def test_demo_prints_the_benchmark_table_with_target_marks(loaded, tmp_path):
@@ -149,7 +194,7 @@ def test_demo_prints_the_benchmark_table_with_target_marks(loaded, tmp_path):
     assert {(r["style"], r["path"]) for r in rows} == {(s, p) for s in ("Neutral", "Crouched")
                                                        for p in (*quality.TARGET_PATHS, "capture")}
     text = "\n".join(said)
-    assert report.table([])[0] in said and "| LPN FiLM | Neutral | straight | " in text
+    assert report.table([])[0] in said and "| LPN FiLM | Neutral | straight" in text
     marks = [line for line in said if line.startswith("| LPN FiLM |") and line.endswith(("| pass |", "| FAIL |"))]
     lock_marks = [line for line in marks if any(f"| {t} |" in line for t in report.LOCK_TARGETS)]
     assert len(lock_marks) == 2 * 4 * len(report.LOCK_TARGETS)  # every row, every foot-locking target

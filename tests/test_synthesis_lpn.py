@@ -20,7 +20,7 @@ from jaxstyle.mason2022 import finetune, pipeline, styledata
 from jaxstyle.mason2022 import synthesis as synthesis2022
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
-from jaxstyle.output import metrics, synthesis
+from jaxstyle.output import metrics, quality, report, synthesis
 from jaxstyle.output.drive import blend_character
 from jaxstyle.output.synthesis import quality_table
 
@@ -134,7 +134,8 @@ def test_synthesize_drives_characters_and_blends_with_the_2018_metrics(loaded, t
     assert np.isfinite(row["foot_skating_locked_m_s"]) and row["foot_lock"]
     with open(tmp_path / "quality.csv") as f:
         assert len(list(csv.DictReader(f))) == len(out.rows)
-    assert quality_table(out.rows)[2].startswith(f"| {a.title} | straight | ")
+    assert quality_table(out.rows)[2].startswith(f"| {a.title} | straight{report.stalled_mark(row)} | ")
+    assert row["not_stepping"] == bool(row["lifted_step_ratio"] < quality.STEP_RATIO)  # 1 s: next to no step
     # the style distance to the character's capture (jaxstyle.output.style; its numerics: test_style.py);
     # 1 s holds no whole stride, so the gait term and the total are NaN ("n/a"), the pose term is not
     assert "style_distance" in row and np.isfinite(row["style_pose_m"]) and row["style_pose_m"] > 0
@@ -149,7 +150,7 @@ def test_cli_synthesize_model_lpn_film(run_dir, capsys):
     assert main(args + ["--base-styles", "Neutral", "Crouched", "--blend-weights", "0.2", "0.3", "0.5"]) == 0
     text = capsys.readouterr().out
     assert "synthesis with LPN FiLM (1 epochs" in text
-    assert "| 20% Neutral + 30% Crouched + 50% Limping | straight |" in text
+    assert "| 20% Neutral + 30% Crouched + 50% Limping | straight" in text  # (a mark may follow)
     out = run / "synthesis" / "lpn-film"
     assert (out / "straight.gif").is_file() and (out / "quality.csv").is_file()
     assert (out / "bvh" / "Limping_straight.bvh").is_file()
@@ -184,3 +185,28 @@ def test_a_new_style_that_failed_every_check_is_refused_unless_allowed(run_dir, 
     assert "bone error 0.412 > 0.1" in line and "--allow-failed" in line
     (char,) = synthesis2022.characters(loaded, new_styles=["Limping"], allow_failed=True)
     assert char.title.endswith("[FAILED CHECK]")
+
+
+def test_the_style_check_walks_every_style_and_names_the_ones_not_stepping(loaded):
+    """``jaxstyle lpn``'s closing check (:func:`jaxstyle.mason2022.synthesis.style_check`; the command's
+    output: test_cli.py): the training styles and the fine-tuned new style walked along a straight
+    line and measured by the quality benchmark, one table row each, and the styles whose rows say
+    ``not_stepping`` named in the table's last line (a 1-epoch model: whatever it does, the line
+    must agree with the rows)."""
+    from jaxstyle.mason2022 import report as report2022
+
+    rows = synthesis2022.style_check(loaded, ["Crouched", "Neutral"], ["Limping"], seconds=2.0)
+    walked = [r for r in rows if r["path"] != "capture"]
+    assert [(r["style"].split(" (")[0], r["kind"], r["path"]) for r in walked] == [
+        ("Crouched", "base", "straight"), ("Neutral", "base", "straight"), ("Limping", "few-shot", "straight")]
+    assert len(rows) == 6 and all(r["path"] == "capture" for r in rows[3:])
+    assert all(r["not_stepping"] == bool(r["lifted_step_ratio"] < quality.STEP_RATIO) for r in walked)
+    table = report2022.style_check_table(rows)
+    assert [line.split(" | ")[0] for line in table[2:5]] == [f"| {r['style']}{report.stalled_mark(r)}"
+                                                             for r in walked]
+    named = [r["style"] for r in walked if r["not_stepping"]]
+    assert table[-1] == (f"not stepping (lifted steps under 0.5 of the capture's, or diverged): {', '.join(named)}"
+                         if named else "every style steps (lifted steps at least 0.5 of its capture's)")
+    # a style said not stepping is named, whatever this model did
+    forced = [{**r, "not_stepping": r["style"].startswith("Neutral")} if r["path"] != "capture" else r for r in rows]
+    assert report2022.style_check_table(forced)[-1].endswith("or diverged): Neutral")

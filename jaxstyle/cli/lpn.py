@@ -29,7 +29,11 @@ encoder on the training styles of --data (bone-length loss included), report tes
 length loss per style, then fine-tune only the FiLM generator on each new style at every dropout
 rate in one compiled sweep, report the losses before and after, and choose a rate per new style
 (lowest validation loss). Writes RUN/lpn: checkpoints, results.md, chosen_rates.json,
-finetuned_generators.npz and figure11.png.
+finetuned_generators.npz and figure11.png. Last, every training and new style walks 8 s along a
+straight line with the default runtime and is measured as experiments/quality.py measures it:
+the table (also in results.md) names the styles that do not step, lifting their feet at under
+half their capture's rate (a pose frozen while the root moves; the test loss does not show it).
+--no-style-check skips it.
 
 With --clip FILE.bvh [FILE2.bvh ...] the new styles are your own clips of the training data's
 skeleton instead (one new style per file, named by its stem; --clip-range START END keeps those
@@ -79,6 +83,9 @@ def add_arguments(p) -> None:
     p.add_argument("--average-epochs", type=int, default=0,
                    help="the model is the mean of the last N epochs' weights (not in the paper; 0 or 1: the last "
                         "epoch's; docs/mason2022.md, 'Averaged weights')")
+    p.add_argument("--no-style-check", action="store_true",
+                   help="skip the closing check: every style walked 8 s along a straight line and measured "
+                        "(lifted steps, feet on the floor, skating, style distance against its capture)")
     add_joint_map_arg(p)
     add_distributed_args(p)
     add_common(p)
@@ -161,8 +168,27 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
         run.say("chosen rates: " + ", ".join(f"{s} {result.chosen_rate(s):g}" for s in result.styles))
         files += list(finetune.write_finetune(result, out).values())
         files.append(report.film_figure(model, result, out / "figure11.png"))
+    if run.writer and not args.no_style_check:
+        lines += ["", *_style_check(run, args, model, data, out)]
     (out / "results.md").write_text("\n".join(lines) + "\n")
     written(run, "written", files)
+
+
+def _style_check(run: Run, args, model, data, out: Path) -> list[str]:
+    """The closing check (:func:`jaxstyle.mason2022.synthesis.style_check`) of the training styles
+    and the new styles just fine-tuned: said and returned as markdown lines."""
+    from jaxstyle.mason2022 import report
+    from jaxstyle.mason2022 import synthesis as synthesis2022
+
+    t0 = time.perf_counter()
+    new = list(data.new.styles) if data.new is not None and args.finetune_steps > 0 else []
+    loaded = synthesis2022.Loaded(model, data, out, args.epochs)
+    rows = synthesis2022.style_check(loaded, list(model.data.styles), new)
+    lines = [f"closed loop of every style: {synthesis2022.STYLE_CHECK_SECONDS:g} s along a straight line at its "
+             f"own speed, default runtime ({elapsed(t0)})", "", *report.style_check_table(rows)]
+    for line in ["", *lines]:
+        run.say(line)
+    return lines
 
 
 def _speed_options(args) -> dict:

@@ -78,7 +78,9 @@ def closed_loop_figures(rows: list[dict]) -> dict[str, dict]:
     ``diverged`` (a non-finite rollout), ``stalled`` (local phases stalled,
     :func:`jaxstyle.output.quality.phase_figures`), ``stepping`` (steps per second of the locked
     skeleton within 25% of its capture's), ``lifted_stepping`` (the same of
-    ``lifted_steps_per_s``, :class:`jaxstyle.output.metrics.StepFigures`), ``gliding`` (feet on the
+    ``lifted_steps_per_s``, :class:`jaxstyle.output.metrics.StepFigures`), ``not_stepping`` (feet
+    lifted at under half the capture's rate while moving, :func:`jaxstyle.output.quality.stepping_figures`;
+    the runtime's phase floor can hide such a row from ``stalled``), ``gliding`` (feet on the
     floor over 95% of frames where its capture's are not), the medians over rows of
     ``steps_ratio``, ``skating_ratio`` (raw foot skating of the network's joints over its
     capture's), ``phase_rate_ratio`` (the local phases' advance over the capture's),
@@ -96,6 +98,7 @@ def closed_loop_figures(rows: list[dict]) -> dict[str, dict]:
         out[model] = {
             "rows": len(mine), "diverged": len(mine) - len(finite),
             "stalled": sum(bool(r.get("phases_stalled")) for r, _ in finite),
+            "not_stepping": sum(bool(r.get("not_stepping")) for r, _ in finite),
             "stepping": int(np.sum(np.abs(steps - 1.0) <= 0.25)),
             "lifted_stepping": int(np.sum(np.abs(lifted - 1.0) <= 0.25)),
             "gliding": sum(r["contact_fraction"] > 0.95 >= c["contact_fraction"] for r, c in finite),
@@ -112,16 +115,54 @@ def closed_loop_figures(rows: list[dict]) -> dict[str, dict]:
 def closed_loop_table(figures: dict[str, dict], results: dict[str, dict[str, np.ndarray]] | None = None) -> list[str]:
     """Markdown lines of :func:`closed_loop_figures`, one row per model, with its test MSE + BLL
     from ``results`` (:func:`jaxstyle.mason2022.pipeline.model_losses` per model) where given."""
-    lines = ["| model | test MSE + BLL | rows stepping within 25% | median steps/s / capture | rows gliding | "
-             "rows stalled | median raw skating / capture | median style distance m | styles shown | "
-             "median wrist range / capture | diverged |", "|---|" + "---|" * 10]
+    lines = ["| model | test MSE + BLL | rows stepping within 25%: onsets, lifted | median steps/s / capture | "
+             "rows gliding | rows stalled | rows not stepping | median raw skating / capture | "
+             "median style distance m | styles shown | median wrist range / capture | diverged |",
+             "|---|" + "---|" * 11]
     for name, f in figures.items():
         loss = (f"{np.mean(results[name]['mse']) + np.mean(results[name]['bll']):.4f}"
                 if results and name in results else "-")
         n = f["rows"] - f["diverged"]
-        lines.append(f"| {name} | {loss} | {f['stepping']} / {n} | {f['steps_ratio']:.2f} | {f['gliding']} / {n} | "
-                     f"{f['stalled']} / {n} | {f['skating_ratio']:.1f} | {f['style_distance']:.2f} | "
+        lines.append(f"| {name} | {loss} | {f['stepping']}, {f['lifted_stepping']} / {n} | {f['steps_ratio']:.2f} | "
+                     f"{f['gliding']} / {n} | {f['stalled']} / {n} | {f['not_stepping']} / {n} | "
+                     f"{f['skating_ratio']:.1f} | {f['style_distance']:.2f} | "
                      f"{f['shows']} / {f['styled']} | {f['wrist_range_ratio']:.2f} | {f['diverged']} / {f['rows']} |")
+    return lines
+
+
+def style_check_table(rows: list[dict]) -> list[str]:
+    """Markdown lines of :func:`jaxstyle.mason2022.synthesis.style_check`'s rows: per style its
+    lifted steps per second beside its capture's and their ratio over the moving frames
+    (``lifted_step_ratio``), contact onsets, feet on the floor, raw skating over the capture's, the
+    style distance (and whether the style shows) and the marks of
+    :func:`jaxstyle.output.report.stalled_mark`; then one line naming the styles not stepping, or
+    saying that every style steps."""
+    from jaxstyle.output.quality import STEP_RATIO
+    from jaxstyle.output.report import shows_mark, stalled_mark
+
+    captures = {r["style"]: r for r in rows if r["path"] == "capture"}
+    lines = ["| style | lifted steps/s (capture) | lifted / capture while moving | onsets/s (capture) | "
+             "feet on floor (capture) | raw skating / capture | style distance m |", "|---|" + "---|" * 6]
+    still = []
+    for r in rows:
+        if r["path"] == "capture":
+            continue
+        c = captures[r["style"]]
+        if not r.get("finite", True):
+            lines.append(f"| {r['style']} (diverged) |" + " n/a |" * 6)
+            still.append(r["style"])
+            continue
+        if r.get("not_stepping"):
+            still.append(r["style"])
+        lines.append(f"| {r['style']}{stalled_mark(r)} | "
+                     f"{r['lifted_steps_per_s']:.2f} ({c['lifted_steps_per_s']:.2f}) | "
+                     f"{r['lifted_step_ratio']:.2f} | {r['steps_per_s']:.2f} ({c['steps_per_s']:.2f}) | "
+                     f"{r['contact_fraction']:.2f} ({c['contact_fraction']:.2f}) | "
+                     f"{r['foot_skating_m_s'] / c['foot_skating_m_s']:.1f} | "
+                     f"{r['style_distance']:.2f}{shows_mark(r)} |")
+    lines.append("")
+    lines.append(f"not stepping (lifted steps under {STEP_RATIO:g} of the capture's, or diverged): {', '.join(still)}"
+                 if still else f"every style steps (lifted steps at least {STEP_RATIO:g} of its capture's)")
     return lines
 
 

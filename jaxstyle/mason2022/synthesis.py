@@ -206,14 +206,34 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
     return out
 
 
-def measure_quality(loaded: Loaded, styles: Sequence[str], new_styles: Sequence[str] = (), **kwargs):
+def measure_quality(loaded: Loaded, styles: Sequence[str], new_styles: Sequence[str] = (), *,
+                    allow_failed: bool = False, **kwargs):
     """The quality benchmark's rows of a loaded model's characters (:func:`characters`: its
-    training ``styles`` as ``base``, the fine-tuned ``new_styles`` as ``few-shot``), driven and
-    measured by :func:`jaxstyle.output.quality.run` (``kwargs``: its ``path_names``,
-    ``seconds`` ...). ``jaxstyle demo --model lpn-film`` and ``experiments/quality.py`` use it."""
+    training ``styles`` as ``base``, the fine-tuned ``new_styles`` as ``few-shot``; ``allow_failed``
+    as there), driven and measured by :func:`jaxstyle.output.quality.run` (``kwargs``: its
+    ``path_names``, ``seconds`` ...). ``jaxstyle demo --model lpn-film``, ``experiments/quality.py``
+    and :func:`style_check` use it."""
     from jaxstyle.output import quality
 
-    chars = characters(loaded, styles=styles, new_styles=new_styles)
+    chars = characters(loaded, styles=styles, new_styles=new_styles, allow_failed=allow_failed)
     subjects = [quality.subject(c, "base" if i < len(styles) else "few-shot", loaded.model.name)
                 for i, c in enumerate(chars)]
     return quality.run(loaded.character_model(), subjects, loaded.data.skeleton, **kwargs)
+
+
+STYLE_CHECK_SECONDS = 8.0
+"""How long :func:`style_check` walks each character (the quality benchmark's length)."""
+
+
+def style_check(loaded: Loaded, styles: Sequence[str], new_styles: Sequence[str] = (), *,
+                seconds: float | None = None) -> list[dict]:
+    """Every training style (and fine-tuned new style, its check's failure marked, not refused) of a
+    freshly trained model walked ``seconds`` along the straight path at its own speed with the
+    default runtime (``seconds``: default :data:`STYLE_CHECK_SECONDS`), measured as the quality benchmark
+    measures (:func:`measure_quality`): its rows
+    (one per character, then its capture's). ``jaxstyle lpn`` prints them
+    (:func:`jaxstyle.mason2022.report.style_check_table`) so that a run says which of its styles
+    step and which hold one pose or glide (``not_stepping``,
+    :func:`jaxstyle.output.quality.stepping_figures`); the test loss cannot tell them apart."""
+    return measure_quality(loaded, styles, new_styles, allow_failed=True, path_names=("straight",),
+                           seconds=STYLE_CHECK_SECONDS if seconds is None else seconds).rows

@@ -44,7 +44,7 @@ from jaxstyle.data.datasets import style_rows
 from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.motion.kinematics import global_positions
-from jaxstyle.output import drive, footlock, style
+from jaxstyle.output import drive, footlock, metrics, style
 from jaxstyle.output.drive import Character
 from jaxstyle.output.measure import capture_figures, exported, measure
 
@@ -113,7 +113,8 @@ def measure_rollouts(subjects: Sequence[Subject], pairs: Sequence[tuple[int, str
         fidelity = style_figures(drawn[(s.title, p)][0], skeleton, signals[k].fps, upm, captures[i], neutral,
                                  cadence=row.get("steps_per_s") if e.locked is not None else None)
         results.append({"model": s.model, "style": s.title, "kind": s.kind, "path": p, "speed_m_s": speeds[i], **row,
-                        **fidelity, **phase_figures(one, signals[k], rates[i])})
+                        **fidelity, **phase_figures(one, signals[k], rates[i]),
+                        **stepping_figures(row, signals[k], captures[i].lifted_steps_per_s)})
     for s, c in zip(subjects, captures, strict=True):
         results.append(capture_row(s, c, neutral))
     return Measured(results, drawn)
@@ -180,6 +181,37 @@ def phase_figures(rollout, signal: paths.PathSignal, capture_rate: float) -> dic
     return {"phase_rate_ratio": ratio, "phases_stalled": bool(ratio < STALL_RATIO)}
 
 
+NOT_STEPPING_MARK = "[NOT STEPPING]"
+"""How :func:`jaxstyle.output.report.table` and ``jaxstyle synthesize``'s table mark a path whose
+character hardly lifts its feet while it moves (:func:`stepping_figures`), whatever its phases do."""
+
+STEP_RATIO = 0.5
+"""A character is not stepping when, per second of the frames where its path asks it to move, it
+lifts its feet (``lifted_steps_per_s`` of the drawn skeleton, :class:`jaxstyle.output.metrics.StepFigures`)
+at under this fraction of its style's capture. Set halfway between a frozen pose (0) and the
+benchmark's lower bound for stepping (0.75: within 25%), not fitted to any run. Measured since on the
+paper-size protocol (``docs/mason2022.md``, "Which styles step"): the 2018 PFNN's rows read 0.67-1.23;
+2022 characters seen holding one pose or standing while their root moved read 0.07-0.16, one seen
+alternating its legs with a low lift count 0.52."""
+
+
+def stepping_figures(row: dict, signal: paths.PathSignal, capture_lifted: float) -> dict:
+    """Of any model's row (:func:`measure`'s ``lifted_steps_per_s``, counted over the whole rollout):
+    the lifted steps per second of the frames where ``signal`` asks the character to move, over
+    its capture's lifted steps per second ``capture_lifted`` (:attr:`CaptureStyle.lifted_steps_per_s`),
+    ``lifted_step_ratio``, and ``not_stepping`` (below :data:`STEP_RATIO`: the character glides or
+    holds one pose while its root moves). It sees what :func:`phase_figures` cannot when the
+    runtime floors the local phases: phases that advance under a frozen pose. NaN and ``None``
+    without a figure (a diverged rollout, a path that never moves, a capture without lifted steps)."""
+    lifted = float(row.get("lifted_steps_per_s", math.nan))
+    speed = np.hypot(*np.asarray(signal.velocity, np.float64).T)
+    moving_s = float(np.sum(speed > 1e-6)) / float(signal.fps)
+    if not (np.isfinite(lifted) and moving_s > 0 and capture_lifted > 0):
+        return {"lifted_step_ratio": math.nan, "not_stepping": None}
+    ratio = lifted * (len(speed) / float(signal.fps)) / moving_s / float(capture_lifted)
+    return {"lifted_step_ratio": ratio, "not_stepping": bool(ratio < STEP_RATIO)}
+
+
 def run(model: CharacterModel, subjects: Sequence[Subject], skeleton: Motion, *,
         path_names: Sequence[str] = PROTOCOL_PATHS, seconds: float = SECONDS,
         follow_seconds: float | None = loop.FOLLOW_SECONDS) -> Measured:
@@ -203,20 +235,23 @@ def capture_spec(dataset: datasets.Dataset, name: str):
 
 class CaptureStyle(NamedTuple):
     """A style's capture (:func:`capture_spec`) loaded once: its ``spec``, the ``clip``, its
-    :class:`jaxstyle.output.style.StyleStats` and the style distance between its two halves
-    (:func:`jaxstyle.output.style.halves_distance`)."""
+    :class:`jaxstyle.output.style.StyleStats`, the style distance between its two halves
+    (:func:`jaxstyle.output.style.halves_distance`) and its lifted steps per second
+    (:func:`jaxstyle.output.metrics.step_figures`, the reference of :func:`stepping_figures`)."""
 
     spec: Any
     clip: Motion
     stats: style.StyleStats
     halves: float
+    lifted_steps_per_s: float
 
     @classmethod
     def of(cls, dataset: datasets.Dataset, name: str, fps: float = 60.0) -> CaptureStyle:
         spec = capture_spec(dataset, name)
         clip = datasets.load_clip(spec, fps=fps)
         pos = global_positions(clip)
-        return cls(spec, clip, style.style_stats(pos, clip, clip.fps), style.halves_distance(pos, clip, clip.fps))
+        return cls(spec, clip, style.style_stats(pos, clip, clip.fps), style.halves_distance(pos, clip, clip.fps),
+                   metrics.step_figures(pos, clip, clip.fps).lifted_steps_per_s)
 
     def to(self, other: CaptureStyle | None) -> float:
         """The style distance from this capture to ``other``'s (NaN without one)."""

@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from jaxstyle.output.measure import SLIDING_SOURCES
-from jaxstyle.output.quality import FOLLOW_PATHS, MODEL_2018, PATH_TARGETS, STALLED_MARK
+from jaxstyle.output.quality import FOLLOW_PATHS, MODEL_2018, NOT_STEPPING_MARK, PATH_TARGETS, STALLED_MARK
 
 
 def _model(r: dict) -> str:
@@ -122,7 +122,7 @@ def _f(v, digits: int = 2) -> str:
 def table(rows: list[dict]) -> list[str]:
     """The benchmark's markdown table: per model (in order of appearance) and style, its capture
     row (naming the capture's file), then one row per path."""
-    head = ("| model | style | path | skating m/s net / BVH / locked | steps/s locked (BVH) | stance | "
+    head = ("| model | style | path | skating m/s net / BVH / locked | steps/s locked, lifted (BVH) | stance | "
             "slide/contact m | foot offset m | below floor m | bone error net max / BVH | "
             "path error mean / final m (final %) | heading deg | stop s | jitter m/s^3 | "
             "ankle jerk net / locked m/s^3 | style distance m (shows) / capture: halves, to Neutral |")
@@ -131,11 +131,12 @@ def table(rows: list[dict]) -> list[str]:
     for r in sorted(rows, key=lambda r: (order[_model(r)], r["style"], r["path"] != "capture")):
         g = r.get
         path = f"capture ({r['capture_file']})" if r["path"] == "capture" and g("capture_file") else r["path"]
-        path += stalled_mark(r)  # the closed loop froze: said, not hidden
+        path += stalled_mark(r)  # the closed loop or the feet froze: said, not hidden
         lines.append(
             f"| {_model(r)} | {r['style']} | {path} | {_f(r['foot_skating_m_s'])} / "
             f"{_f(r['foot_skating_bvh_m_s'])} / {_f(g('foot_skating_locked_m_s'))} | "
-            f"{_f(g('steps_per_s'))} ({_f(g('steps_per_s_bvh'))}) | {_f(g('stance_fraction'))} | "
+            f"{_f(g('steps_per_s'))}, {_f(g('lifted_steps_per_s'))} ({_f(g('steps_per_s_bvh'))}) | "
+            f"{_f(g('stance_fraction'))} | "
             f"{_f(g('slide_per_contact_m'), 3)} | {_f(g('ik_foot_offset_max_m'), 3)} | "
             f"{_f(g('foot_below_floor_m'), 3)} | "
             f"{100 * g('bone_error_max', math.nan):.1f}% / {100 * g('bone_error_bvh_max', math.nan):.1g}%"
@@ -157,8 +158,13 @@ def _style_cell(r: dict) -> str:
 
 def stalled_mark(r: dict) -> str:
     """`` [PHASES STALLED]`` (:data:`jaxstyle.output.quality.STALLED_MARK`) for a row (or a CSV row) whose local phases
-    stalled (:func:`jaxstyle.output.quality.phase_figures`), else nothing."""
-    return f" {STALLED_MARK}" if r.get("phases_stalled") in (True, "True") else ""
+    stalled (:func:`jaxstyle.output.quality.phase_figures`) and `` [NOT STEPPING]``
+    (:data:`jaxstyle.output.quality.NOT_STEPPING_MARK`) for one whose character hardly lifts its feet while
+    it moves (:func:`jaxstyle.output.quality.stepping_figures`); nothing for a row with neither."""
+    marks = [STALLED_MARK] if r.get("phases_stalled") in (True, "True") else []
+    if r.get("not_stepping") in (True, "True"):
+        marks.append(NOT_STEPPING_MARK)
+    return "".join(f" {m}" for m in marks)
 
 
 def shows_mark(r: dict) -> str:

@@ -167,6 +167,7 @@ def write_results(out: str | os.PathLike, characters: Sequence, driven: drive.Dr
         measured = measure.measure(one, skeleton, signals[k], units_per_meter=upm, out=e)
         row.update({key: measured.get(key, float("nan")) for key in EXPORTED_FIGURES})
         row.update(quality.phase_figures(one, signals[k], rates[s]))  # a 2022 character whose phases stalled
+        row.update(quality.stepping_figures(row, signals[k], of[s].lifted_steps_per_s))  # or whose feet froze
         row.update(quality.style_figures(drawn(e), skeleton, fps, upm, of[s], neutral,
                                          cadence=row.get("steps_per_s") if e.locked is not None and foot_lock
                                          else None))
@@ -203,13 +204,15 @@ def _f(v, digits: int = 2) -> str:
 def quality_table(rows: list[dict]) -> list[str]:
     """Markdown lines of the main quality figures: skating of the network's own joints, of the
     exported BVH's skeleton and of that skeleton after foot locking (what the BVH files hold by
-    default), steps per second and stance fraction after locking, how far the lock moved a foot,
-    bone error of the network's joints and of the BVH, path error, time to stop, jitter, and the
-    style distance to the character's capture with whether the style shows
-    (:func:`jaxstyle.output.quality.style_figures`, on what is drawn; :func:`write_results`). A
-    2022 character whose local phases stalled has its path marked
-    :data:`jaxstyle.output.quality.STALLED_MARK` (:func:`jaxstyle.output.quality.phase_figures`)."""
-    lines = ["| style | path | skating m/s network / BVH / locked | steps/s | stance | foot offset m "
+    default), steps per second (contact onsets, then lifted steps) and stance fraction after
+    locking, how far the lock moved a foot, bone error of the network's joints and of the BVH, path
+    error, time to stop, jitter, and the style distance to the character's capture with whether the
+    style shows (:func:`jaxstyle.output.quality.style_figures`, on what is drawn; :func:`write_results`).
+    A 2022 character whose local phases stalled has its path marked
+    :data:`jaxstyle.output.quality.STALLED_MARK` (:func:`jaxstyle.output.quality.phase_figures`), a
+    character of any model that hardly lifts its feet while it moves
+    :data:`jaxstyle.output.quality.NOT_STEPPING_MARK` (:func:`jaxstyle.output.quality.stepping_figures`)."""
+    lines = ["| style | path | skating m/s network / BVH / locked | steps/s, lifted | stance | foot offset m "
              "| bone error network mean / max / BVH max | path error mean / final m | stop s | jitter m/s^3 "
              "| style distance m (shows) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -217,7 +220,8 @@ def quality_table(rows: list[dict]) -> list[str]:
         g = r.get
         path = r["path"] + report.stalled_mark(r)
         lines.append(f"| {r['style']} | {path} | {_f(g('foot_skating_m_s'))} / {_f(g('foot_skating_bvh_m_s'))} / "
-                     f"{_f(g('foot_skating_locked_m_s'))} | {_f(g('steps_per_s'))} | {_f(g('stance_fraction'))} "
+                     f"{_f(g('foot_skating_locked_m_s'))} | {_f(g('steps_per_s'))}, {_f(g('lifted_steps_per_s'))} "
+                     f"| {_f(g('stance_fraction'))} "
                      f"| {_f(g('ik_foot_offset_max_m'), 3)} "
                      f"| {_f(100 * r['bone_error_mean'], 1)}% / {_f(100 * r['bone_error_max'], 0)}% / "
                      f"{_f(100 * float(g('bone_error_bvh_max', 'nan')), 0)}% "
