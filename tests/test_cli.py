@@ -170,17 +170,20 @@ def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     run = tmp_path / "run"
     tiny = ("--data", tiny_data, "--styles", "Neutral", "Crouched", "--new-styles", "Limping", "--gaits", "FW",
             "--epochs", 1, "--hidden", 8, "--generator-hidden", 16, "--filters", 4, "--quiet")
-    assert run_cli("lpn", *tiny, "--run", run, "--finetune-steps", 2, "--rates", 0.1) == 0
+    assert run_cli("lpn", *tiny, "--run", run, "--finetune-steps", 2, "--rates", 0.1, 0.5) == 0
     out = capsys.readouterr().out
     assert "| Neutral |" in out and "| Limping |" in out
     results = (run / "lpn" / "results.md").read_text()
-    assert results.startswith("| new style | test MSE before | after @ 0.1 |")
+    assert results.startswith("| new style | test MSE before | after @ 0.1 | after @ 0.5 | chosen rate |")
+    assert "(chosen)" in results and (run / "lpn" / "figure11.png").is_file()
+    chosen = json.loads((run / "lpn" / "chosen_rates.json").read_text())
+    assert list(chosen) == ["Limping"] and chosen["Limping"]["rate"] in (0.1, 0.5)
     # the closing check: every style walked, said and written (its rows: test_synthesis_lpn.py)
     check = results[results.index("closed loop of every style: 8 s along a straight line"):].splitlines()
     assert [line.split(" | ")[0].split(" ")[1] for line in check[4:7]] == ["Crouched", "Neutral", "Limping"]
     assert check[-1].startswith(("not stepping (lifted steps under 0.5", "every style steps")) and check[-1] in out
-    with np.load(run / "lpn" / "finetuned_generators.npz") as z:
-        assert all(z[k].shape[:2] == (1, 1) for k in z.files)
+    with np.load(run / "lpn" / "finetuned_generators.npz") as z:  # (new styles, rates)
+        assert all(z[k].shape[:2] == (1, 2) for k in z.files)
     # --seed: recorded, and another seed trains another model (its test losses differ)
     losses = [line for line in out.splitlines() if line.startswith(("| Neutral |", "| Crouched |"))][:2]
     run2 = tmp_path / "run2"

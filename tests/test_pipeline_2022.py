@@ -26,6 +26,7 @@ def test_choose_rates_takes_the_lowest_finite_loss_else_the_first():
     assert check_lib.choose_rates(loss)[0].tolist() == [1, 0, 2, 0]
 
 
+@pytest.mark.slow  # the default run goes the same way through `jaxstyle lpn` (tests/test_cli.py), files checked
 def test_build_train_finetune_select_report(tiny, tmp_path):
     root, cache = tiny
     styles, new_styles = folders.split_styles(root)

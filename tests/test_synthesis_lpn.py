@@ -210,3 +210,5 @@ def test_the_style_check_walks_every_style_and_names_the_ones_not_stepping(loade
     # a style said not stepping is named, whatever this model did
     forced = [{**r, "not_stepping": r["style"].startswith("Neutral")} if r["path"] != "capture" else r for r in rows]
     assert report2022.style_check_table(forced)[-1].endswith("or diverged): Neutral")
+    blank = [{**r, "lifted_step_ratio": float("nan"), "not_stepping": None} for r in rows]  # e.g. a capture
+    assert all(" | n/a | " in line for line in report2022.style_check_table(blank)[2:5])  # without lifted steps

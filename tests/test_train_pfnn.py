@@ -82,6 +82,8 @@ def test_data_parallel_matches_one_device(tmp_path):
     assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr[-3000:]
 
 
+@pytest.mark.slow  # 30 s; the default run trains on the shared clips too: tests/test_synthesis.py's trained_pfnn
+# (the Neutral captures, then driven along paths) and `jaxstyle demo` on them (tests/test_cli.py)
 def test_base_model_on_the_shared_sample_learns(mocap):
     """The 8 Xia styles + the PFNN captures, full-size network, a short run: validation loss
     well below predicting the mean (experiments/mason2018_base.py runs the long version)."""

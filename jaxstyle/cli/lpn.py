@@ -168,7 +168,7 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
         run.say("chosen rates: " + ", ".join(f"{s} {result.chosen_rate(s):g}" for s in result.styles))
         files += list(finetune.write_finetune(result, out).values())
         files.append(report.film_figure(model, result, out / "figure11.png"))
-    if run.writer and not args.no_style_check:
+    if not args.no_style_check:  # every process of a --distributed run, as the sweep; process 0 says it
         lines += ["", *_style_check(run, args, model, data, out)]
     (out / "results.md").write_text("\n".join(lines) + "\n")
     written(run, "written", files)

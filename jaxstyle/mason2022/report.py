@@ -65,6 +65,11 @@ def ordering_lines(results: dict[str, dict[str, np.ndarray]]) -> list[str]:
     return lines
 
 
+def _f(v, digits: int = 2) -> str:
+    """A figure with ``digits`` decimals, ``n/a`` when missing or not finite."""
+    return "n/a" if v is None or not np.isfinite(float(v)) else f"{float(v):.{digits}f}"
+
+
 def _median(values) -> float:
     """The median of the finite values (NaN when there is none, e.g. a model without local phases)."""
     values = np.asarray(values, float)
@@ -155,11 +160,11 @@ def style_check_table(rows: list[dict]) -> list[str]:
         if r.get("not_stepping"):
             still.append(r["style"])
         lines.append(f"| {r['style']}{stalled_mark(r)} | "
-                     f"{r['lifted_steps_per_s']:.2f} ({c['lifted_steps_per_s']:.2f}) | "
-                     f"{r['lifted_step_ratio']:.2f} | {r['steps_per_s']:.2f} ({c['steps_per_s']:.2f}) | "
-                     f"{r['contact_fraction']:.2f} ({c['contact_fraction']:.2f}) | "
-                     f"{r['foot_skating_m_s'] / c['foot_skating_m_s']:.1f} | "
-                     f"{r['style_distance']:.2f}{shows_mark(r)} |")
+                     f"{_f(r['lifted_steps_per_s'])} ({_f(c['lifted_steps_per_s'])}) | "
+                     f"{_f(r['lifted_step_ratio'])} | {_f(r['steps_per_s'])} ({_f(c['steps_per_s'])}) | "
+                     f"{_f(r['contact_fraction'])} ({_f(c['contact_fraction'])}) | "
+                     f"{_f(r['foot_skating_m_s'] / c['foot_skating_m_s'], 1)} | "
+                     f"{_f(r.get('style_distance'))}{shows_mark(r)} |")
     lines.append("")
     lines.append(f"not stepping (lifted steps under {STEP_RATIO:g} of the capture's, or diverged): {', '.join(still)}"
                  if still else f"every style steps (lifted steps at least {STEP_RATIO:g} of its capture's)")

@@ -189,10 +189,11 @@ STEP_RATIO = 0.5
 """A character is not stepping when, per second of the frames where its path asks it to move, it
 lifts its feet (``lifted_steps_per_s`` of the drawn skeleton, :class:`jaxstyle.output.metrics.StepFigures`)
 at under this fraction of its style's capture. Set halfway between a frozen pose (0) and the
-benchmark's lower bound for stepping (0.75: within 25%), not fitted to any run. Measured since on the
-paper-size protocol (``docs/mason2022.md``, "Which styles step"): the 2018 PFNN's rows read 0.67-1.23;
-2022 characters seen holding one pose or standing while their root moved read 0.07-0.16, one seen
-alternating its legs with a low lift count 0.52."""
+benchmark's lower bound for stepping (0.75: within 25%), before the runs below and not fitted to
+them; earlier paper-size runs' frozen rows had read 0.00-0.33 of their captures' lifted steps over
+the whole rollout. Measured since on the paper-size protocol (``docs/mason2022.md``, "Which styles
+step"): the 2018 PFNN's rows read 0.67-1.23; 2022 characters seen holding one pose or standing
+while their root moved read 0.07-0.16, one seen alternating its legs with a low lift count 0.52."""
 
 
 def stepping_figures(row: dict, signal: paths.PathSignal, capture_lifted: float) -> dict:
