@@ -293,10 +293,10 @@ def summary(rows: list[dict]) -> list[str]:
     """One line per (recipe, runtime) from :func:`jaxstyle.mason2022.report.closed_loop_figures`,
     with the medians of the planted feet's and the root's speeds (:func:`planted_speed`) of the
     generated rows and of their captures, and of the generated rows' :func:`stance_sweep`."""
-    lines = ["| recipe | runtime | rows stalled | median phase rate / capture | rows stepping within 25% of "
-             "capture | median steps/s / capture | median raw skating / capture | median style distance m | "
-             "median planted-foot / root speed m/s (capture) | median stance sweep / root speed |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| recipe | runtime | rows stalled | rows not stepping | median phase rate / capture | rows stepping "
+             "within 25% of capture | median steps/s / capture | median raw skating / capture | median style "
+             "distance m | median planted-foot / root speed m/s (capture) | median stance sweep / root speed |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     groups = {r["model"]: r for r in rows}
 
     def med(mine, key):
@@ -307,7 +307,8 @@ def summary(rows: list[dict]) -> list[str]:
         gen = [r for r in rows if r["model"] == model and r["path"] != "capture"]
         cap = [r for r in rows if r["model"] == model and r["path"] == "capture"]
         lines.append(f"| {groups[model]['recipe']} | {runtime_name(groups[model]['phase_floor'])} | "
-                     f"{f['stalled']} / {n} | {f['phase_rate_ratio']:.2f} | {f['stepping']} / {n} | "
+                     f"{f['stalled']} / {n} | {f['not_stepping']} / {n} | {f['phase_rate_ratio']:.2f} | "
+                     f"{f['stepping']} / {n} | "
                      f"{f['steps_ratio']:.2f} | {f['skating_ratio']:.1f} | {f['style_distance']:.2f} | "
                      f"{med(gen, 'planted_speed_m_s'):.2f} / {med(gen, 'root_speed_m_s'):.2f} "
                      f"({med(cap, 'planted_speed_m_s'):.2f} / {med(cap, 'root_speed_m_s'):.2f}) | "
