@@ -65,11 +65,6 @@ def ordering_lines(results: dict[str, dict[str, np.ndarray]]) -> list[str]:
     return lines
 
 
-def _f(v, digits: int = 2) -> str:
-    """A figure with ``digits`` decimals, ``n/a`` when missing or not finite."""
-    return "n/a" if v is None or not np.isfinite(float(v)) else f"{float(v):.{digits}f}"
-
-
 def _median(values) -> float:
     """The median of the finite values (NaN when there is none, e.g. a model without local phases)."""
     values = np.asarray(values, float)
@@ -143,7 +138,7 @@ def style_check_table(rows: list[dict]) -> list[str]:
     :func:`jaxstyle.output.report.stalled_mark`; then one line naming the styles not stepping, or
     saying that every style steps."""
     from jaxstyle.output.quality import STEP_RATIO
-    from jaxstyle.output.report import shows_mark, stalled_mark
+    from jaxstyle.output.report import figure, shows_mark, stalled_mark
 
     captures = {r["style"]: r for r in rows if r["path"] == "capture"}
     lines = ["| style | lifted steps/s (capture) | lifted / capture while moving | onsets/s (capture) | "
@@ -160,11 +155,11 @@ def style_check_table(rows: list[dict]) -> list[str]:
         if r.get("not_stepping"):
             still.append(r["style"])
         lines.append(f"| {r['style']}{stalled_mark(r)} | "
-                     f"{_f(r['lifted_steps_per_s'])} ({_f(c['lifted_steps_per_s'])}) | "
-                     f"{_f(r['lifted_step_ratio'])} | {_f(r['steps_per_s'])} ({_f(c['steps_per_s'])}) | "
-                     f"{_f(r['contact_fraction'])} ({_f(c['contact_fraction'])}) | "
-                     f"{_f(r['foot_skating_m_s'] / c['foot_skating_m_s'], 1)} | "
-                     f"{_f(r.get('style_distance'))}{shows_mark(r)} |")
+                     f"{figure(r['lifted_steps_per_s'])} ({figure(c['lifted_steps_per_s'])}) | "
+                     f"{figure(r['lifted_step_ratio'])} | {figure(r['steps_per_s'])} ({figure(c['steps_per_s'])}) | "
+                     f"{figure(r['contact_fraction'])} ({figure(c['contact_fraction'])}) | "
+                     f"{figure(r['foot_skating_m_s'] / c['foot_skating_m_s'], 1)} | "
+                     f"{figure(r.get('style_distance'))}{shows_mark(r)} |")
     lines.append("")
     lines.append(f"not stepping (lifted steps under {STEP_RATIO:g} of the capture's, or diverged): {', '.join(still)}"
                  if still else f"every style steps (lifted steps at least {STEP_RATIO:g} of its capture's)")

@@ -93,8 +93,8 @@ def target_summary(checks: list[dict]) -> list[str]:
         mine = [c for c in checks if c["target"] == name and c.get("model", MODEL_2018) == model]
         met = sum(c["met"] for c in mine)
         worst = max(mine, key=lambda c: (c["value"] - c["limit"]) if np.isfinite(c["value"]) else math.inf)
-        lines.append(f"| {model} | {name} | {met} / {len(mine)} | {_f(worst['value'], 3)} vs "
-                     f"{_f(worst['limit'], 3)} ({worst['style']}, {worst['path']}) |")
+        lines.append(f"| {model} | {name} | {met} / {len(mine)} | {figure(worst['value'], 3)} vs "
+                     f"{figure(worst['limit'], 3)} ({worst['style']}, {worst['path']}) |")
     return lines
 
 
@@ -104,8 +104,8 @@ def target_marks(checks: list[dict], names: Sequence[str] = PATH_TARGETS) -> lis
     count when there are several)."""
     mine = [c for c in checks if c["target"] in names]
     lines = ["| model | style | path | target | value | limit | |", "|---|---|---|---|---|---|---|"]
-    lines += [f"| {c.get('model', MODEL_2018)} | {c['style']} | {c['path']} | {c['target']} | {_f(c['value'], 2)} | "
-              f"{_f(c['limit'], 2)} | {'pass' if c['met'] else 'FAIL'} |" for c in mine]
+    lines += [f"| {c.get('model', MODEL_2018)} | {c['style']} | {c['path']} | {c['target']} | "
+              f"{figure(c['value'], 2)} | {figure(c['limit'], 2)} | {'pass' if c['met'] else 'FAIL'} |" for c in mine]
     met = sum(c["met"] for c in mine)
     blank = sum(not np.isfinite(c["value"]) for c in mine)
     note = f" ({blank} n/a: never stopped before the path moved on or ended, or a diverged rollout)" if blank else ""
@@ -115,8 +115,12 @@ def target_marks(checks: list[dict], names: Sequence[str] = PATH_TARGETS) -> lis
     return lines + ["", f"{', '.join(names)}: {met} of {len(mine)} met{note}{detail}"]
 
 
-def _f(v, digits: int = 2) -> str:
-    return "n/a" if v is None or not np.isfinite(v) else f"{v:.{digits}f}"
+def figure(v, digits: int = 2) -> str:
+    """A table cell: ``v`` with ``digits`` decimals, ``n/a`` when it is missing (``None``, or a
+    CSV row's blank) or not finite. The benchmark's tables here, ``jaxstyle synthesize``'s
+    (:func:`jaxstyle.output.synthesis.quality_table`) and ``jaxstyle lpn``'s closing check
+    (:func:`jaxstyle.mason2022.report.style_check_table`) write their figures with it."""
+    return "n/a" if v is None or v == "" or not np.isfinite(float(v)) else f"{float(v):.{digits}f}"
 
 
 def table(rows: list[dict]) -> list[str]:
@@ -133,17 +137,17 @@ def table(rows: list[dict]) -> list[str]:
         path = f"capture ({r['capture_file']})" if r["path"] == "capture" and g("capture_file") else r["path"]
         path += stalled_mark(r)  # the closed loop or the feet froze: said, not hidden
         lines.append(
-            f"| {_model(r)} | {r['style']} | {path} | {_f(r['foot_skating_m_s'])} / "
-            f"{_f(r['foot_skating_bvh_m_s'])} / {_f(g('foot_skating_locked_m_s'))} | "
-            f"{_f(g('steps_per_s'))}, {_f(g('lifted_steps_per_s'))} ({_f(g('steps_per_s_bvh'))}) | "
-            f"{_f(g('stance_fraction'))} | "
-            f"{_f(g('slide_per_contact_m'), 3)} | {_f(g('ik_foot_offset_max_m'), 3)} | "
-            f"{_f(g('foot_below_floor_m'), 3)} | "
+            f"| {_model(r)} | {r['style']} | {path} | {figure(r['foot_skating_m_s'])} / "
+            f"{figure(r['foot_skating_bvh_m_s'])} / {figure(g('foot_skating_locked_m_s'))} | "
+            f"{figure(g('steps_per_s'))}, {figure(g('lifted_steps_per_s'))} ({figure(g('steps_per_s_bvh'))}) | "
+            f"{figure(g('stance_fraction'))} | "
+            f"{figure(g('slide_per_contact_m'), 3)} | {figure(g('ik_foot_offset_max_m'), 3)} | "
+            f"{figure(g('foot_below_floor_m'), 3)} | "
             f"{100 * g('bone_error_max', math.nan):.1f}% / {100 * g('bone_error_bvh_max', math.nan):.1g}%"
-            f" | {_f(g('path_error_mean_m'))} / "
-            f"{_f(g('path_error_final_m'))} ({_f(g('path_error_final_pct'), 1)}%) | "
-            f"{_f(g('heading_error_deg'), 1)} | {_f(g('stop_time_s'))} | {_f(g('jitter_m_s3'), 0)} | "
-            f"{_f(g('ankle_jerk_m_s3'), 0)} / {_f(g('ankle_jerk_locked_m_s3'), 0)} | {_style_cell(r)} |")
+            f" | {figure(g('path_error_mean_m'))} / "
+            f"{figure(g('path_error_final_m'))} ({figure(g('path_error_final_pct'), 1)}%) | "
+            f"{figure(g('heading_error_deg'), 1)} | {figure(g('stop_time_s'))} | {figure(g('jitter_m_s3'), 0)} | "
+            f"{figure(g('ankle_jerk_m_s3'), 0)} / {figure(g('ankle_jerk_locked_m_s3'), 0)} | {_style_cell(r)} |")
     return lines
 
 
@@ -152,8 +156,8 @@ def _style_cell(r: dict) -> str:
     style shows; a capture's distance between its halves and to Neutral's capture."""
     g = r.get
     if r["path"] == "capture":
-        return f"{_f(g('style_halves_distance', math.nan))}, {_f(g('style_to_neutral', math.nan))}"
-    return f"{_f(g('style_distance', math.nan))}{shows_mark(r)}"
+        return f"{figure(g('style_halves_distance', math.nan))}, {figure(g('style_to_neutral', math.nan))}"
+    return f"{figure(g('style_distance', math.nan))}{shows_mark(r)}"
 
 
 def stalled_mark(r: dict) -> str:
@@ -254,7 +258,7 @@ def lock_comparison(rows: list[dict]) -> list[str]:
                 return f"{sum(ok(r.get(key, math.nan), k) for r, k in zip(mine, c, strict=True))} / {n}"
 
             def med(key, digits, mine=mine):
-                return "" if key is None else _f(float(np.nanmedian([r.get(key, math.nan) for r in mine])), digits)
+                return "" if key is None else figure(float(np.nanmedian([r.get(key, math.nan) for r in mine])), digits)
 
             cells = [met(skate, lambda v, k: v <= k["foot_skating_m_s"] + 0.03),
                      met(steps, lambda v, k: abs(v - k["steps_per_s"]) <= 0.25 * k["steps_per_s"]),
@@ -267,7 +271,7 @@ def lock_comparison(rows: list[dict]) -> list[str]:
     for model in dict.fromkeys(_model(r) for r in rows):
         mine = [r for r in rows if _model(r) == model and r["path"] != "capture" and "sliding_held" in r]
         if mine:
-            shares = [_f(float(np.nanmedian([r[f"sliding_{k.replace(', ', '_')}"] for r in mine])))
+            shares = [figure(float(np.nanmedian([r[f"sliding_{k.replace(', ', '_')}"] for r in mine])))
                       for k in SLIDING_SOURCES]
             lines.append(f"| {model} | " + " | ".join(shares) + " |")
     return lines

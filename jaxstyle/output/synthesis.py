@@ -31,6 +31,7 @@ from jaxstyle.labels.contacts import estimate_units_per_meter
 from jaxstyle.motion import Motion
 from jaxstyle.output import drive, export, footlock, measure, metrics, preview, quality, report
 from jaxstyle.output.drive import Character
+from jaxstyle.output.report import figure as _f
 
 
 @dataclasses.dataclass
@@ -195,10 +196,6 @@ EXPORTED_FIGURES = ("foot_skating_bvh_m_s", "foot_skating_locked_m_s", *measure.
 """The columns :func:`write_results` adds from :func:`jaxstyle.output.measure.measure` (its
 stepping and foot-lock columns are :data:`jaxstyle.output.measure.LOCK_FIGURES`); the real
 clips' rows have the figures of their own skeleton there."""
-
-
-def _f(v, digits: int = 2) -> str:
-    return "n/a" if v is None or v == "" or not np.isfinite(float(v)) else f"{float(v):.{digits}f}"
 
 
 def quality_table(rows: list[dict]) -> list[str]:
