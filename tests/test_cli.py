@@ -169,12 +169,20 @@ def test_own_style_folder_without_csv_files(tiny_data, tmp_path, capsys):
 def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     run = tmp_path / "run"
     tiny = ("--data", tiny_data, "--styles", "Neutral", "Crouched", "--new-styles", "Limping", "--gaits", "FW",
-            "--epochs", 1, "--hidden", 8, "--generator-hidden", 16, "--filters", 4, "--quiet")
-    assert run_cli("lpn", *tiny, "--run", run, "--finetune-steps", 2, "--rates", 0.1, 0.5) == 0
+            "--hidden", 8, "--generator-hidden", 16, "--filters", 4, "--quiet")
+    assert run_cli("lpn", *tiny, "--epochs", 2, "--run", run, "--finetune-steps", 2, "--rates", 0.1, 0.5) == 0
     out = capsys.readouterr().out
     assert "| Neutral |" in out and "| Limping |" in out
     results = (run / "lpn" / "results.md").read_text()
-    assert results.startswith("| new style | test MSE before | after @ 0.1 | after @ 0.5 | chosen rate |")
+    # the epoch of the two whose training styles step best (the rule: test_synthesis_lpn.py), said and recorded
+    record = json.loads((run / "lpn" / "chosen_epoch.json").read_text())
+    assert record["trained_epochs"] == 2 and record["epoch"] in (1, 2)
+    assert set(record["lifted_step_ratio"]) == {"1", "2"}
+    said = f"epoch chosen by the closed loop: {record['epoch']} of 2 ("
+    assert results.startswith(said) and said in out
+    table = [line.split(" | ")[0] for line in results.splitlines()[2:6]]
+    assert table == ["| epoch", "|---|---|---|---|---|---|", "| 1", "| 2"]
+    assert "| new style | test MSE before | after @ 0.1 | after @ 0.5 | chosen rate |" in results
     assert "(chosen)" in results and (run / "lpn" / "figure11.png").is_file()
     chosen = json.loads((run / "lpn" / "chosen_rates.json").read_text())
     assert list(chosen) == ["Limping"] and chosen["Limping"]["rate"] in (0.1, 0.5)
@@ -184,14 +192,18 @@ def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     assert check[-1].startswith(("not stepping (lifted steps under 0.5", "every style steps")) and check[-1] in out
     with np.load(run / "lpn" / "finetuned_generators.npz") as z:  # (new styles, rates)
         assert all(z[k].shape[:2] == (1, 2) for k in z.files)
-    # --seed: recorded, and another seed trains another model (its test losses differ)
-    losses = [line for line in out.splitlines() if line.startswith(("| Neutral |", "| Crouched |"))][:2]
+    # --seed: recorded, and another seed trains another model (its first epoch's losses differ)
+    def first_epoch(folder):
+        return (folder / "lpn" / "log.csv").read_text().splitlines()[1].split(",")[1:6]  # losses, not seconds
+
     run2 = tmp_path / "run2"
-    assert run_cli("lpn", *tiny, "--run", run2, "--finetune-steps", 0, "--seed", 1, "--no-style-check") == 0
+    assert run_cli("lpn", *tiny, "--epochs", 1, "--run", run2, "--finetune-steps", 0, "--seed", 1,
+                   "--no-style-check") == 0
     out2 = capsys.readouterr().out
-    assert "closed loop of every style" not in out2
+    assert "closed loop of every style" not in out2 and "epoch chosen" not in out2  # one epoch: nothing to choose
+    assert not (run2 / "lpn" / "chosen_epoch.json").exists()
     assert json.loads((run2 / "lpn" / "config.json").read_text())["train"]["seed"] == 1
-    assert len(losses) == 2 and not any(line in out2 for line in losses)
+    assert all(a != b for a, b in zip(first_epoch(run), first_epoch(run2), strict=True))
 
 
 def test_render_bvh_files(tiny_data, tmp_path, capsys):
@@ -266,6 +278,7 @@ def test_help_everywhere(command, capsys):
     (["render", "{tmp}/none.bvh"], "none.bvh: no such file"),
     (["demo", "--run", "{tmp}/r", "--seconds", "-1"], "--seconds must be positive"),
     (["lpn", "--data", "{tmp}", "--run", "{tmp}/r", "--finetune-steps", "-1"], "--finetune-steps must be >= 0"),
+    (["lpn", "--data", "{tmp}", "--run", "{tmp}/r", "--choose-epoch", "-1"], "--choose-epoch must be >= 0"),
 ])
 def test_bad_arguments_give_one_line_errors(argv, message, tmp_path, capsys):
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]

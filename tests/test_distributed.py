@@ -126,6 +126,7 @@ def test_two_process_lpn_training_equals_the_one_process_run(base_run, tmp_path)
     for key in ("train_loss", "train_mse", "train_bll", "val_mse", "val_bll"):
         np.testing.assert_allclose(float(b[0][key]), float(a[0][key]), rtol=1e-4)
     assert (tmp_path / "zero" / "lpn" / "results.md").is_file()
+    assert not (tmp_path / "zero" / "lpn" / "chosen_epoch.json").exists()  # no epoch chosen across processes
     assert not (tmp_path / "other").exists()  # process 1 wrote nothing
 
 

@@ -212,3 +212,74 @@ def test_the_style_check_walks_every_style_and_names_the_ones_not_stepping(loade
     assert report2022.style_check_table(forced)[-1].endswith("or diverged): Neutral")
     blank = [{**r, "lifted_step_ratio": float("nan"), "not_stepping": None} for r in rows]  # e.g. a capture
     assert all(" | n/a | " in line for line in report2022.style_check_table(blank)[2:5])  # without lifted steps
+
+
+def test_epoch_score_counts_styles_within_25_percent_then_those_not_stepping():
+    """:func:`jaxstyle.mason2022.synthesis.epoch_score` on lifted-step ratios: within 25% is
+    ``|r - 1| <= 0.25`` (0.75 and 1.25 count, 0.74 and 1.26 do not); not stepping is under
+    :data:`jaxstyle.output.quality.STEP_RATIO`; NaN counts as neither."""
+    assert synthesis2022.epoch_score({"a": 0.75, "b": 1.25, "c": 0.74, "d": 1.26, "e": float("nan")}) == (2, 0)
+    assert synthesis2022.epoch_score({"a": 0.49, "b": 0.0, "c": 0.5, "d": 1.0}) == (1, -2)
+    assert synthesis2022.epoch_score({}) == (0, 0)
+
+
+def test_the_epoch_chosen_by_the_closed_loop_is_recorded_loaded_and_dropped_by_further_training(
+        run_dir, tmp_path, monkeypatch):
+    """:func:`jaxstyle.mason2022.synthesis.choose_epoch` on a 3-epoch run: the closed-loop check is
+    replaced by one that first checks it was given that epoch's own saved weights and then returns
+    set ratios, so the rule is tested on known figures (the check itself: the test above). The
+    epoch with the most styles within 25% wins over a later one with fewer; its weights come back,
+    the choice is recorded, and ``load_model`` and a rerun of ``train_model`` load that epoch; a
+    recorded choice is reused without driving; a record made for another number of epochs trained
+    is stale (the last epoch again); a damaged record is refused in one line naming the file."""
+    from jaxstyle.data.folders import PipelineError
+    from jaxstyle.mason2022 import report as report2022
+
+    run, model, data, _ = run_dir
+    folder = tmp_path / "lpn"
+    last = pipeline.train_model(data, model.config, folder, epochs=3, progress=False)
+    saved = synthesis2022.train_config(__import__("json").loads((folder / "config.json").read_text())["train"])
+    assert train_lpn.saved_epochs(folder, saved, model.data.styles) == [1, 2, 3]
+    weights = {e: train_lpn.load(folder, saved, model.data.styles, epoch=e).params for e in (1, 2, 3)}
+    assert _equal_trees(weights[3], last.params) and not _equal_trees(weights[2], weights[3])
+    ratios = {1: {"Crouched": 1.0, "Neutral": 0.3}, 2: {"Crouched": 1.1, "Neutral": 0.8},
+              3: {"Crouched": 0.9, "Neutral": 1.5}}  # scores (1, -1), (2, 0), (1, 0): epoch 2
+    seen = []
+
+    def check(candidate, styles, new_styles=(), *, seconds=None):
+        assert _equal_trees(candidate.model.params, weights[candidate.epochs]) and list(styles) == ["Crouched",
+                                                                                                     "Neutral"]
+        seen.append(candidate.epochs)
+        walked = [{"style": s, "path": "straight", "lifted_step_ratio": ratios[candidate.epochs][s]} for s in styles]
+        return walked + [{"style": s, "path": "capture", "lifted_step_ratio": float("nan")} for s in styles]
+
+    monkeypatch.setattr(synthesis2022, "style_check", check)
+    choice = synthesis2022.choose_epoch(last, data, folder)
+    assert seen == [1, 2, 3] and (choice.epoch, choice.trained_epochs) == (2, 3) and choice.ratios == ratios
+    assert _equal_trees(choice.model.params, weights[2])
+    assert pipeline.chosen_epoch(folder, 3) == 2 and pipeline.chosen_epoch(folder, 4) is None
+    table = report2022.epoch_choice_table(choice)
+    assert table[0] == "| epoch | Crouched | Neutral | within 25% | not stepping | |"
+    assert table[2:] == ["| 1 | 1.00 | 0.30 | 1 | 1 |  |", "| 2 | 1.10 | 0.80 | 2 | 0 | chosen |",
+                         "| 3 | 0.90 | 1.50 | 1 | 0 |  |"]
+    # a tie goes to the later epoch; two epochs compared
+    ratios[3], third = dict(ratios[2]), ratios[3]
+    assert synthesis2022.choose_epoch(last, data, folder, epochs=2, reuse=False).epoch == 3
+    ratios[3] = third
+    assert synthesis2022.choose_epoch(last, data, folder, reuse=False).epoch == 2  # chosen again, recorded
+    loaded = synthesis2022.load_model(folder, cache=run / "cache")
+    assert loaded.epochs == 2 and _equal_trees(loaded.model.params, weights[2])
+    assert _equal_trees(pipeline.train_model(data, model.config, folder, epochs=3, progress=False).params, weights[2])
+    seen.clear()
+    again = synthesis2022.choose_epoch(last, data, folder)  # recorded: read back, nothing driven
+    assert seen == [] and again.epoch == 2 and _equal_trees(again.model.params, weights[2])
+    assert again.ratios == ratios
+    assert synthesis2022.choose_epoch(last, data, folder, epochs=1).ratios == {}  # nothing to choose from
+    # a record of another training (a run trained on within its budget, pipeline.train_for) is stale
+    (folder / pipeline.CHOSEN_EPOCH_FILE).write_text('{"epoch": 2, "trained_epochs": 5}')
+    reloaded = synthesis2022.load_model(folder, cache=run / "cache")
+    assert reloaded.epochs == 3 and _equal_trees(reloaded.model.params, weights[3])
+    (folder / pipeline.CHOSEN_EPOCH_FILE).write_text("{not json")
+    with pytest.raises(PipelineError, match=r"chosen_epoch.json: not a chosen-epoch record") as e:
+        synthesis2022.load_model(folder, cache=run / "cache")
+    assert "\n" not in str(e.value)

@@ -21,19 +21,24 @@ from jaxstyle.cli.args import (
 from jaxstyle.cli.common import DATA_HELP, CLIError, Run, elapsed, machine, progress, written
 
 FINETUNE_RATES = LazyDefault("jaxstyle.train.defaults", "FILM_DEFAULT_RATES")
+CHOOSE_EPOCHS = LazyDefault("jaxstyle.mason2022.synthesis", "CHOOSE_EPOCHS")
 NAME = "lpn"
 HELP = "train the 2022 LPN-FiLM network, test it, fine-tune it on new styles"
 DOC = """\
 Mason, Starke & Komura 2022: train the local-phase network with FiLM layers driven by a style-clip
-encoder on the training styles of --data (bone-length loss included), report test MSE and bone
-length loss per style, then fine-tune only the FiLM generator on each new style at every dropout
-rate in one compiled sweep, report the losses before and after, and choose a rate per new style
-(lowest validation loss). Writes RUN/lpn: checkpoints, results.md, chosen_rates.json,
-finetuned_generators.npz and figure11.png. Last, every training and new style walks 8 s along a
-straight line with the default runtime and is measured as experiments/quality.py measures it:
-the table (also in results.md) names the styles that do not step, lifting their feet at under
-half their capture's rate (a pose frozen while the root moves; the test loss does not show it).
---no-style-check skips it.
+encoder on the training styles of --data (bone-length loss included); take the model from the
+epoch, among the last three kept, whose training styles step best in the closed loop (each walks
+8 s along a straight line; the epoch with the most styles lifting their feet within 25% of their
+captures' rate wins; recorded in RUN/lpn/chosen_epoch.json and loaded from then on; --choose-epoch
+0, --average-epochs above 1 and --distributed keep the last epoch, the paper's); report its test
+MSE and bone length loss per style, then fine-tune only the FiLM generator on each new style at
+every dropout rate in one compiled sweep, report the losses before and after, and choose a rate
+per new style (lowest validation loss). Writes RUN/lpn: checkpoints, chosen_epoch.json,
+results.md, chosen_rates.json, finetuned_generators.npz and figure11.png. Last, every training
+and new style walks 8 s along a straight line with the default runtime and is measured as
+experiments/quality.py measures it: the table (also in results.md) names the styles that do not
+step, lifting their feet at under half their capture's rate (a pose frozen while the root moves;
+the test loss does not show it). --no-style-check skips it.
 
 With --clip FILE.bvh [FILE2.bvh ...] the new styles are your own clips of the training data's
 skeleton instead (one new style per file, named by its stem; --clip-range START END keeps those
@@ -83,6 +88,10 @@ def add_arguments(p) -> None:
     p.add_argument("--average-epochs", type=int, default=0,
                    help="the model is the mean of the last N epochs' weights (not in the paper; 0 or 1: the last "
                         "epoch's; docs/mason2022.md, 'Averaged weights')")
+    p.add_argument("--choose-epoch", type=int, default=CHOOSE_EPOCHS,
+                   help="the model is the epoch, of the last N, whose training styles step best along the closing "
+                        "check's straight line (not in the paper; 0 or 1: the last epoch's, the paper's; off with "
+                        "--average-epochs above 1; docs/mason2022.md, 'Choosing the epoch')")
     p.add_argument("--no-style-check", action="store_true",
                    help="skip the closing check: every style walked 8 s along a straight line and measured "
                         "(lifted steps, feet on the floor, skating, style distance against its capture)")
@@ -121,6 +130,8 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
     check_positive(args, "epochs", "hidden", "generator_hidden", "filters")
     if args.finetune_steps < 0:
         raise CLIError(f"--finetune-steps must be >= 0, got {args.finetune_steps}")
+    if args.choose_epoch < 0:
+        raise CLIError(f"--choose-epoch must be >= 0, got {args.choose_epoch}")
     if args.clip and args.finetune_steps == 0:
         raise CLIError("--clip needs fine-tuning steps: --finetune-steps must be > 0")
     if args.clip_range and not args.clip:
@@ -148,9 +159,16 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
                                  **_speed_options(args))
     run.say(f"LPN-FiLM ({args.hidden} hidden, {args.epochs} epochs, {int((data.base.split == 0).sum()):,} training "
             f"rows) ready in {elapsed(t0)}: {run.dir / 'lpn'}")
+    chosen, files, epoch = [], [out, out / "results.md"], args.epochs
+    if args.choose_epoch > 1 and args.average_epochs <= 1 and args.distributed:
+        run.say("the last epoch's weights: the epoch is chosen only in a one-process run (a process of several "
+                "does not read earlier epochs back)")
+    elif args.choose_epoch > 1 and args.average_epochs <= 1:
+        model, chosen, epoch = _choose_epoch(run, args, model, data, out)
+        files += [out / pipeline.CHOSEN_EPOCH_FILE] if chosen else []
+    lines = []
     for line in report.losses_table(model.data.styles, pipeline.model_losses(model)):
         run.say(line)
-    lines, files = [], [out, out / "results.md"]
     if args.clip:
         result, checked, paths = finetune.finetune_clips(model, data, out, rates=args.rates,
                                                          steps=args.finetune_steps, progress=progress(args))
@@ -169,12 +187,34 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
         files += list(finetune.write_finetune(result, out).values())
         files.append(report.film_figure(model, result, out / "figure11.png"))
     if not args.no_style_check:  # every process of a --distributed run, as the sweep; process 0 says it
-        lines += ["", *_style_check(run, args, model, data, out)]
+        lines += ["", *_style_check(run, args, model, data, out, epoch)]
+    if chosen:
+        lines = [*chosen, "", *lines]
     (out / "results.md").write_text("\n".join(lines) + "\n")
     written(run, "written", files)
 
 
-def _style_check(run: Run, args, model, data, out: Path) -> list[str]:
+def _choose_epoch(run: Run, args, model, data, out: Path):
+    """The model of the epoch, of the last --choose-epoch, whose training styles step best in the
+    closed loop (:func:`jaxstyle.mason2022.synthesis.choose_epoch`): said, and returned with the
+    markdown lines that say it."""
+    from jaxstyle.mason2022 import report
+    from jaxstyle.mason2022 import synthesis as synthesis2022
+
+    t0 = time.perf_counter()
+    choice = synthesis2022.choose_epoch(model, data, out, epochs=args.choose_epoch)
+    if not choice.ratios:  # a single epoch kept: nothing to choose
+        return choice.model, [], choice.epoch
+    lines = [f"epoch chosen by the closed loop: {choice.epoch} of {choice.trained_epochs} ({elapsed(t0)}; the "
+             f"epoch whose training styles lift their feet within 25% of their captures' rate most often, "
+             f"{synthesis2022.STYLE_CHECK_SECONDS:g} s along a straight line; lifted steps / capture's per epoch)",
+             "", *report.epoch_choice_table(choice)]
+    for line in ["", *lines]:
+        run.say(line)
+    return choice.model, lines, choice.epoch
+
+
+def _style_check(run: Run, args, model, data, out: Path, epoch: int) -> list[str]:
     """The closing check (:func:`jaxstyle.mason2022.synthesis.style_check`) of the training styles
     and the new styles just fine-tuned: said and returned as markdown lines."""
     from jaxstyle.mason2022 import report
@@ -182,7 +222,7 @@ def _style_check(run: Run, args, model, data, out: Path) -> list[str]:
 
     t0 = time.perf_counter()
     new = list(data.new.styles) if data.new is not None and args.finetune_steps > 0 else []
-    loaded = synthesis2022.Loaded(model, data, out, args.epochs)
+    loaded = synthesis2022.Loaded(model, data, out, epoch)
     rows = synthesis2022.style_check(loaded, list(model.data.styles), new)
     lines = [f"closed loop of every style: {synthesis2022.STYLE_CHECK_SECONDS:g} s along a straight line at its "
              f"own speed, default runtime ({elapsed(t0)})", "", *report.style_check_table(rows)]

@@ -21,6 +21,7 @@ folder in the 100STYLE layout (:mod:`jaxstyle.data.folders`):
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import time
 import warnings
@@ -111,12 +112,40 @@ def train_model(data: LPNData, config: StyleModelConfig, directory: str | os.Pat
     (:func:`jaxstyle.mason2022.train.train`: style-balanced batches, the paper's optimiser;
     ``train_options``: other :class:`jaxstyle.mason2022.train.LPNTrainConfig` fields, e.g. the demo's
     ``learning_rate``; ``devices`` / ``compute_dtype``: data-parallel devices and bfloat16 products,
-    as :func:`jaxstyle.mason2022.train.train`)."""
+    as :func:`jaxstyle.mason2022.train.train`).
+
+    The model's weights are the last epoch's, or those of the epoch recorded for this training by
+    :func:`jaxstyle.mason2022.synthesis.choose_epoch` (:func:`chosen_epoch`) when the folder has one."""
     style_data = styledata.style_data(data.base, data.skeleton, backbone=config.backbone)
     write_data_file(data, directory, name)
-    state = train_lpn.train(style_data, train_lpn.LPNTrainConfig(model=config, epochs=epochs, **train_options),
-                            directory, progress=progress, devices=devices, compute_dtype=compute_dtype)
+    train_config = train_lpn.LPNTrainConfig(model=config, epochs=epochs, **train_options)
+    state = train_lpn.train(style_data, train_config, directory, progress=progress, devices=devices,
+                            compute_dtype=compute_dtype)
+    chosen = chosen_epoch(directory, int(state.epoch))
+    if chosen is not None and chosen != int(state.epoch):
+        state = train_lpn.load(directory, train_config, style_data.styles, compute_dtype=compute_dtype, epoch=chosen)
     return Model(name, config, state.params, style_data)
+
+
+CHOSEN_EPOCH_FILE = "chosen_epoch.json"
+"""The file of a run folder in which :func:`jaxstyle.mason2022.synthesis.choose_epoch` records the
+epoch the model is taken from."""
+
+
+def chosen_epoch(directory: str | os.PathLike, trained_epochs: int) -> int | None:
+    """The epoch recorded in ``directory``'s :data:`CHOSEN_EPOCH_FILE` for a run trained
+    ``trained_epochs`` epochs; ``None`` without a record, or when the record was made before the
+    run trained further (its ``trained_epochs`` differ). A damaged record is refused in one line."""
+    path = Path(directory) / CHOSEN_EPOCH_FILE
+    if not path.is_file():
+        return None
+    try:
+        record = json.loads(path.read_text())
+        recorded, epoch = int(record["trained_epochs"]), int(record["epoch"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise PipelineError(f"{path}: not a chosen-epoch record ({type(e).__name__}: {e}); remove it to use the "
+                            "last epoch's weights") from None
+    return epoch if recorded == int(trained_epochs) else None
 
 
 def write_data_file(data: LPNData, directory: str | os.PathLike, name: str = MODEL) -> Path:

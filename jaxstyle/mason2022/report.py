@@ -130,6 +130,24 @@ def closed_loop_table(figures: dict[str, dict], results: dict[str, dict[str, np.
     return lines
 
 
+def epoch_choice_table(choice) -> list[str]:
+    """Markdown lines of a :class:`jaxstyle.mason2022.synthesis.EpochChoice`: one row per epoch
+    compared, its training styles' lifted steps over their captures' on the check
+    (``lifted_step_ratio``), the styles within 25% of the capture's, those not stepping, and which
+    epoch was chosen."""
+    from jaxstyle.mason2022.synthesis import epoch_score
+    from jaxstyle.output.report import figure
+
+    styles = list(dict.fromkeys(s for r in choice.ratios.values() for s in r))
+    lines = ["| epoch | " + " | ".join(styles) + " | within 25% | not stepping | |",
+             "|---|" + "---|" * (len(styles) + 3)]
+    for epoch, ratios in sorted(choice.ratios.items()):
+        within, still = epoch_score(ratios)
+        lines.append(f"| {epoch} | " + " | ".join(figure(ratios.get(s)) for s in styles)
+                     + f" | {within} | {-still} | {'chosen' if epoch == choice.epoch else ''} |")
+    return lines
+
+
 def style_check_table(rows: list[dict]) -> list[str]:
     """Markdown lines of :func:`jaxstyle.mason2022.synthesis.style_check`'s rows: per style its
     lifted steps per second beside its capture's and their ratio over the moving frames

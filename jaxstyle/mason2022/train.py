@@ -304,6 +304,17 @@ def averaged_params(ckpt: Checkpointer, state: ModelState, epochs: int) -> dict:
     return jax.tree.map(lambda a, like: jnp.asarray(a / len(steps), jnp.asarray(like).dtype), total, state.params)
 
 
+def saved_epochs(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str], *,
+                 compute_dtype: str = "float32") -> list[int]:
+    """The epochs whose checkpoints a :func:`train` run folder keeps, in order (the last 3, or the
+    last ``config.average_epochs`` when more)."""
+    ckpt = _checkpointer(directory, config, styles, compute_dtype)
+    try:
+        return sorted(int(s) for s in ckpt.all_steps())
+    finally:
+        ckpt.close()
+
+
 def _kept_epochs(config: LPNTrainConfig) -> int:
     """How many epochs' checkpoints a run folder keeps: 3, or the epochs averaged when more."""
     return max(3, config.average_epochs)
@@ -328,13 +339,14 @@ def _run_config(config: LPNTrainConfig, styles: Sequence[str], compute_dtype: st
 
 
 def load(directory: str | Path, config: LPNTrainConfig, styles: Sequence[str], *,
-         compute_dtype: str = "float32") -> ModelState:
+         compute_dtype: str = "float32", epoch: int | None = None) -> ModelState:
     """The last checkpoint of a :func:`train` run folder (its parameters the mean of the last
-    ``config.average_epochs`` epochs' when that is above 1, :func:`averaged_params`)."""
+    ``config.average_epochs`` epochs' when that is above 1, :func:`averaged_params`), or the one
+    saved after ``epoch`` (one of :func:`saved_epochs`; its own weights, never averaged)."""
     ckpt = _checkpointer(directory, config, styles, compute_dtype)
     try:
-        state = ckpt.restore(init_state(jax.random.PRNGKey(config.seed), config))
-        if config.average_epochs > 1:
+        state = ckpt.restore(init_state(jax.random.PRNGKey(config.seed), config), step=epoch)
+        if epoch is None and config.average_epochs > 1:
             state = state._replace(params=averaged_params(ckpt, state, config.average_epochs))
         return state
     finally:
