@@ -91,7 +91,7 @@ def add_arguments(p) -> None:
     p.add_argument("--choose-epoch", type=int, default=CHOOSE_EPOCHS,
                    help="the model is the epoch, of the last N, whose training styles step best along the closing "
                         "check's straight line (not in the paper; 0 or 1: the last epoch's, the paper's; off with "
-                        "--average-epochs above 1; docs/mason2022.md, 'Choosing the epoch')")
+                        "--average-epochs above 1 and --distributed; docs/mason2022.md, 'Choosing the epoch')")
     p.add_argument("--no-style-check", action="store_true",
                    help="skip the closing check: every style walked 8 s along a straight line and measured "
                         "(lifted steps, feet on the floor, skating, style distance against its capture)")
