@@ -116,17 +116,21 @@ def test_two_process_sweep_equals_the_one_process_sweep(base_run, tmp_path):
 def test_two_process_lpn_training_equals_the_one_process_run(base_run, tmp_path):
     data, _ = base_run
     port = free_port()
-    procs = [start(["lpn", "--data", data, "--run", tmp_path / "zero", *LPN], 0, port),
-             start(["lpn", "--data", data, "--run", tmp_path / "other", *LPN], 1, port)]
-    assert cli.main(["lpn", "--data", str(data), "--run", str(tmp_path / "one"), *LPN]) == 0
+    two = [*LPN[:LPN.index("--epochs")], "--epochs", "2", *LPN[LPN.index("--epochs") + 2:]]  # epochs to choose from
+    procs = [start(["lpn", "--data", data, "--run", tmp_path / "zero", *two], 0, port),
+             start(["lpn", "--data", data, "--run", tmp_path / "other", *two], 1, port)]
+    assert cli.main(["lpn", "--data", str(data), "--run", str(tmp_path / "one"), *two]) == 0
     for rc, _, stderr in finish(procs):
         assert rc == 0, stderr[-3000:]
     a, b = rows(tmp_path / "one" / "lpn" / "log.csv"), rows(tmp_path / "zero" / "lpn" / "log.csv")
-    assert len(a) == len(b) == 1
+    assert len(a) == len(b) == 2
     for key in ("train_loss", "train_mse", "train_bll", "val_mse", "val_bll"):
-        np.testing.assert_allclose(float(b[0][key]), float(a[0][key]), rtol=1e-4)
+        np.testing.assert_allclose([float(r[key]) for r in b], [float(r[key]) for r in a], rtol=1e-4)
     assert (tmp_path / "zero" / "lpn" / "results.md").is_file()
-    assert not (tmp_path / "zero" / "lpn" / "chosen_epoch.json").exists()  # no epoch chosen across processes
+    # the one-process run chose among its two epochs; the two processes kept the last, as they say
+    assert (tmp_path / "one" / "lpn" / "chosen_epoch.json").is_file()
+    assert not (tmp_path / "zero" / "lpn" / "chosen_epoch.json").exists()
+    assert "epoch is chosen only in a one-process run" in (tmp_path / "zero" / "log.txt").read_text()
     assert not (tmp_path / "other").exists()  # process 1 wrote nothing
 
 
