@@ -21,7 +21,6 @@ folder in the 100STYLE layout (:mod:`jaxstyle.data.folders`):
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 import warnings
@@ -37,7 +36,7 @@ from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.motion import Motion
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn.style_models import StyleModelConfig
-from jaxstyle.train.checkpoint import json_text
+from jaxstyle.train.checkpoint import json_text, read_json
 
 PAPER_NEW_STYLES = ("Elated", "Rushed")
 """The new (held-out) styles of ``experiments/mason2022_styles.py`` in the shared 100STYLE sample."""
@@ -132,20 +131,38 @@ CHOSEN_EPOCH_FILE = "chosen_epoch.json"
 epoch the model is taken from."""
 
 
-def chosen_epoch(directory: str | os.PathLike, trained_epochs: int) -> int | None:
-    """The epoch recorded in ``directory``'s :data:`CHOSEN_EPOCH_FILE` for a run trained
-    ``trained_epochs`` epochs; ``None`` without a record, or when the record was made before the
-    run trained further (its ``trained_epochs`` differ). A damaged record is refused in one line."""
+def chosen_record(directory: str | os.PathLike, trained_epochs: int) -> dict | None:
+    """The record in ``directory``'s :data:`CHOSEN_EPOCH_FILE` (``epoch``, ``trained_epochs``, the
+    rule and the check's figures) for a run trained ``trained_epochs`` epochs; ``None`` without a
+    record, or when the record was made before the run trained further (its ``trained_epochs``
+    differ). A damaged record is refused in one line."""
     path = Path(directory) / CHOSEN_EPOCH_FILE
     if not path.is_file():
         return None
     try:
-        record = json.loads(path.read_text())
-        recorded, epoch = int(record["trained_epochs"]), int(record["epoch"])
+        record = read_json(path)
+        recorded = int(record["trained_epochs"])
+        record["epoch"] = int(record["epoch"])
     except (ValueError, KeyError, TypeError) as e:
         raise PipelineError(f"{path}: not a chosen-epoch record ({type(e).__name__}: {e}); remove it to use the "
                             "last epoch's weights") from None
-    return epoch if recorded == int(trained_epochs) else None
+    return record if recorded == int(trained_epochs) else None
+
+
+def chosen_epoch(directory: str | os.PathLike, trained_epochs: int) -> int | None:
+    """The epoch of :func:`chosen_record`, or ``None``."""
+    record = chosen_record(directory, trained_epochs)
+    return None if record is None else record["epoch"]
+
+
+def write_chosen_record(directory: str | os.PathLike, record: dict) -> Path:
+    """``directory``'s :data:`CHOSEN_EPOCH_FILE`: ``record`` as strict JSON (a NaN figure as
+    ``null``), written whole and renamed into place."""
+    path = Path(directory) / CHOSEN_EPOCH_FILE
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json_text(record) + "\n")
+    os.replace(tmp, path)
+    return path
 
 
 def write_data_file(data: LPNData, directory: str | os.PathLike, name: str = MODEL) -> Path:

@@ -102,6 +102,12 @@ def train_config(saved: dict) -> train_lpn.LPNTrainConfig:
     return _dataclass(train_lpn.LPNTrainConfig, cfg)
 
 
+def _saved_run(directory: Path) -> tuple[train_lpn.LPNTrainConfig, tuple[str, ...], str]:
+    """The training config, styles and compute dtype of a run folder's ``config.json``."""
+    saved = json.loads((directory / "config.json").read_text())
+    return train_config(saved["train"]), tuple(saved["styles"]), saved.get("compute_dtype", "float32")
+
+
 def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None = None,
                progress: bool = False) -> Loaded:
     """The style model trained into ``directory`` by :func:`jaxstyle.mason2022.pipeline.train_model`,
@@ -113,10 +119,8 @@ def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None 
         if not (directory / name).is_file():
             raise PipelineError(f"no trained 2022 model in {directory} (no {name}): train one with "
                                 "`jaxstyle lpn --data PATH --run RUN` (or `jaxstyle demo --model lpn-film`)")
-    saved = json.loads((directory / "config.json").read_text())
+    config, styles, dtype = _saved_run(directory)
     meta = json.loads((directory / "data.json").read_text())
-    config = train_config(saved["train"])
-    styles = tuple(saved["styles"])
 
     def build(specs):
         with warnings.catch_warnings():
@@ -134,7 +138,6 @@ def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None 
     if config.model.backbone == "pfnn" and len(base.global_phase) != len(base.inputs):
         raise PipelineError(f"{directory}: {meta.get('name', 'the model')} has the PFNN backbone and its rows no "
                             "global phase (a cache older than them): remove the cache folder and load it again")
-    dtype = saved.get("compute_dtype", "float32")
     try:
         state = train_lpn.load(directory, config, styles, compute_dtype=dtype)
     except FileNotFoundError:
@@ -295,9 +298,7 @@ def choose_epoch(model: pipeline.Model, data: pipeline.LPNData, directory: str |
         raise ValueError("choosing the epoch reads earlier epochs' checkpoints back, which a process of several does "
                          "not restore: train with one process, or keep the last epoch")
     directory = Path(directory)
-    saved = json.loads((directory / "config.json").read_text())
-    config, styles = train_config(saved["train"]), tuple(saved["styles"])
-    dtype = saved.get("compute_dtype", "float32")
+    config, styles, dtype = _saved_run(directory)
     kept = train_lpn.saved_epochs(directory, config, styles, compute_dtype=dtype)
     if not kept:
         raise PipelineError(f"{directory} has no checkpoint yet: finish training it first")
@@ -306,27 +307,23 @@ def choose_epoch(model: pipeline.Model, data: pipeline.LPNData, directory: str |
     trained = kept[-1]
     if len(kept[-epochs:]) < 2:  # nothing to choose from: the last epoch, nothing driven or recorded
         return EpochChoice(trained, trained, model, {})
-    if reuse and pipeline.chosen_epoch(directory, trained) is not None:  # chosen for this training already
-        record = json.loads((directory / pipeline.CHOSEN_EPOCH_FILE).read_text())
-        chosen = int(record["epoch"])
+    def weights(epoch):
+        return train_lpn.load(directory, config, styles, compute_dtype=dtype, epoch=epoch).params
+
+    record = pipeline.chosen_record(directory, trained) if reuse else None
+    if record is not None:  # chosen for this training already
         ratios = {int(e): {s: np.nan if v is None else float(v) for s, v in r.items()}
                   for e, r in record.get("lifted_step_ratio", {}).items()}
-        return EpochChoice(chosen, trained, model._replace(params=train_lpn.load(
-            directory, config, styles, compute_dtype=dtype, epoch=chosen).params), ratios)
-    ratios, params = {}, {}
-    for epoch in kept[-epochs:]:
-        params[epoch] = train_lpn.load(directory, config, styles, compute_dtype=dtype, epoch=epoch).params
-        candidate = Loaded(model._replace(params=params[epoch]), data, directory, epoch)
+        return EpochChoice(record["epoch"], trained, model._replace(params=weights(record["epoch"])), ratios)
+    ratios, best = {}, None
+    for epoch in kept[-epochs:]:  # one epoch's weights in memory beside the best so far
+        candidate = Loaded(model._replace(params=weights(epoch)), data, directory, epoch)
         rows = style_check(candidate, list(model.data.styles), seconds=seconds)
-        ratios[epoch] = {r["style"]: float(r.get("lifted_step_ratio", np.nan)) for r in rows
-                         if not str(r.get("path", "")).startswith("capture")}
-    chosen = max(ratios, key=lambda e: (*epoch_score(ratios[e]), e))
-    record = {"epoch": chosen, "trained_epochs": trained, "rule": "most training styles with lifted steps within 25% "
-              "of the capture's on the closing check, then fewest not stepping, then the later epoch",
-              "lifted_step_ratio": {str(e): {s: (round(v, 4) if np.isfinite(v) else None) for s, v in r.items()}
-                                    for e, r in ratios.items()}}
-    path = directory / pipeline.CHOSEN_EPOCH_FILE
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(record, indent=1) + "\n")
-    os.replace(tmp, path)
-    return EpochChoice(chosen, trained, model._replace(params=params[chosen]), ratios)
+        ratios[epoch] = {r["style"]: float(r.get("lifted_step_ratio", np.nan)) for r in rows if r["path"] != "capture"}
+        if best is None or (*epoch_score(ratios[epoch]), epoch) >= (*epoch_score(ratios[best.epochs]), best.epochs):
+            best = candidate
+    pipeline.write_chosen_record(directory, {
+        "epoch": best.epochs, "trained_epochs": trained, "rule": "most training styles with lifted steps within 25% "
+        "of the capture's on the closing check, then fewest not stepping, then the later epoch",
+        "lifted_step_ratio": {str(e): {s: round(v, 4) for s, v in r.items()} for e, r in ratios.items()}})
+    return EpochChoice(best.epochs, trained, best.model, ratios)
