@@ -21,7 +21,7 @@ from jaxstyle.cli.args import (
 from jaxstyle.cli.common import DATA_HELP, CLIError, Run, elapsed, machine, progress, written
 
 FINETUNE_RATES = LazyDefault("jaxstyle.train.defaults", "FILM_DEFAULT_RATES")
-CHOOSE_EPOCHS = LazyDefault("jaxstyle.mason2022.synthesis", "CHOOSE_EPOCHS")
+CHOOSE_EPOCHS = LazyDefault("jaxstyle.train.defaults", "CHOOSE_EPOCHS")  # a module that starts no JAX
 NAME = "lpn"
 HELP = "train the 2022 LPN-FiLM network, test it, fine-tune it on new styles"
 DOC = """\

@@ -46,7 +46,7 @@ from jaxstyle.nn.style_models import StyleModelConfig
 from jaxstyle.output import drive
 from jaxstyle.output.check import FAILED_MARK, failed_check, refusal
 from jaxstyle.output.drive import Character
-from jaxstyle.train.defaults import BODY_SMOOTH, FOOT_SMOOTH, PHASE_FLOOR
+from jaxstyle.train.defaults import BODY_SMOOTH, CHOOSE_EPOCHS, FOOT_SMOOTH, PHASE_FLOOR
 
 MODELS = {"lpn-film": "LPN FiLM", "lpn-onehot": "LPN One-hot", "lpn-resad": "LPN Resad", "mann-film": "MANN FiLM",
           "pfnn-film": "PFNN FiLM", "pfnn-onehot": "PFNN One-hot", "pfnn-resad": "PFNN Resad"}
@@ -245,10 +245,6 @@ def style_check(loaded: Loaded, styles: Sequence[str], new_styles: Sequence[str]
     :func:`jaxstyle.output.quality.stepping_figures`); the test loss cannot tell them apart."""
     return measure_quality(loaded, styles, new_styles, allow_failed=True, path_names=("straight",),
                            seconds=STYLE_CHECK_SECONDS if seconds is None else seconds).rows
-
-
-CHOOSE_EPOCHS = 3
-"""How many of a run's last epochs :func:`choose_epoch` compares (a run folder keeps the last 3)."""
 
 
 class EpochChoice(NamedTuple):

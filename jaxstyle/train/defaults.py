@@ -17,6 +17,10 @@ FILM_DEFAULT_RATES: tuple[float, ...] = (0.1, 0.3, 0.5)
 (:data:`DEFAULT_RATES`), the generator being trained with 0.3."""
 
 
+CHOOSE_EPOCHS = 3
+"""How many of a run's last epochs ``jaxstyle.mason2022.synthesis.choose_epoch`` compares (a run
+folder keeps the last 3); ``jaxstyle lpn --choose-epoch``'s default."""
+
 PHASE_FLOOR = 0.75
 """The runtime's default floor on each limb's local-phase advance, as a fraction of the style's
 capture rate (:func:`jaxstyle.control.lpn_phases.floored_phases`,
