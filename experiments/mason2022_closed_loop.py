@@ -365,7 +365,7 @@ def main(argv=None) -> None:
         rows = []
         for folder in args.model:
             loaded = synthesis2022.load_model(folder, cache=args.run / "cache")
-            print(f"{folder}: {loaded.model.name}, {loaded.epochs} epochs, {model_line(loaded.model)}")
+            print(f"{folder}: {loaded.model.name}, {loaded.epoch_text()}, {model_line(loaded.model)}")
             chosen = Path(folder) / "chosen_rates.json"
             new = list(json.loads(chosen.read_text())) if chosen.is_file() and loaded.data.new is not None else []
             for floor in (0.0, PHASE_FLOOR):

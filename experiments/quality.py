@@ -100,7 +100,7 @@ def lpn_rows(folder: Path, cache: Path, seconds: float, foot_smooth: float | Non
             continue
         rows += got
         measured = sum(r["path"] == "capture" for r in got)  # one capture row per character
-        print(f"2022 model {model.name} ({loaded.epochs} epochs, {d}): {measured} characters measured "
+        print(f"2022 model {model.name} ({loaded.epoch_text()}, {d}): {measured} characters measured "
               f"({time.perf_counter() - t0:.0f} s)")
     return rows
 

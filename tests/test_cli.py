@@ -186,12 +186,20 @@ def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     assert "(chosen)" in results and (run / "lpn" / "figure11.png").is_file()
     chosen = json.loads((run / "lpn" / "chosen_rates.json").read_text())
     assert list(chosen) == ["Limping"] and chosen["Limping"]["rate"] in (0.1, 0.5)
+    # each rate walked (the rule: test_synthesis_lpn.py), its figures written and shown
+    assert set(chosen["Limping"]["lifted_step_ratio"]) == {"0.1", "0.5"}
+    assert "| new style | lifted steps / capture's @ 0.1 | lifted steps / capture's @ 0.5 |" in results
+    assert "then every pair walked 8 s along a straight line (" in out
     # the closing check: every style walked, said and written (its rows: test_synthesis_lpn.py)
     check = results[results.index("closed loop of every style: 8 s along a straight line"):].splitlines()
     assert [line.split(" | ")[0].split(" ")[1] for line in check[4:7]] == ["Crouched", "Neutral", "Limping"]
     assert check[-1].startswith(("not stepping (lifted steps under 0.5", "every style steps")) and check[-1] in out
     with np.load(run / "lpn" / "finetuned_generators.npz") as z:  # (new styles, rates)
         assert all(z[k].shape[:2] == (1, 2) for k in z.files)
+    # --choose-epoch 0 on the trained folder: the last epoch, and the record goes (synthesize follows it)
+    assert run_cli("lpn", *tiny, "--epochs", 2, "--run", run, "--finetune-steps", 0, "--no-style-check",
+                   "--choose-epoch", 0) == 0
+    assert "epoch chosen" not in capsys.readouterr().out and not (run / "lpn" / "chosen_epoch.json").exists()
     # --seed: recorded, and another seed trains another model (its first epoch's losses differ)
     def first_epoch(folder):
         return (folder / "lpn" / "log.csv").read_text().splitlines()[1].split(",")[1:6]  # losses, not seconds
@@ -204,6 +212,33 @@ def test_lpn_trains_tests_and_finetunes(tiny_data, tmp_path, capsys):
     assert not (run2 / "lpn" / "chosen_epoch.json").exists()
     assert json.loads((run2 / "lpn" / "config.json").read_text())["train"]["seed"] == 1
     assert all(a != b for a, b in zip(first_epoch(run), first_epoch(run2), strict=True))
+
+
+@pytest.mark.slow
+def test_demo_lpn_film_chooses_the_epoch(tiny_data, tmp_path, capsys):
+    """``jaxstyle demo --model lpn-film --choose-epoch 2`` with tiny sizes: the epoch of the last two
+    that steps best is chosen, said, recorded and driven (the synthesis line names it), and the new
+    style's rates are walked; ``--choose-epoch 0 --choose-rate validation`` on the same folder drive
+    the last epoch, remove the record and walk no rate."""
+    run = tmp_path / "run"
+    tiny = ("demo", "--model", "lpn-film", "--data", tiny_data, "--run", run, "--styles", "Neutral", "Crouched",
+            "--fewshot-styles", "Limping", "--gaits", "FW", "--hidden", 8, "--generator-hidden", 16, "--filters", 4,
+            "--lpn-epochs", 2, "--finetune-steps", 2, "--synth-seconds", 1, "--no-quality", "--quiet")
+    assert run_cli(*tiny, "--choose-epoch", 2) == 0
+    out = capsys.readouterr().out
+    assert "then every pair walked 8 s along a straight line" in out
+    assert set(json.loads((run / "lpn" / "chosen_rates.json").read_text())["Limping"]["lifted_step_ratio"]) == {
+        "0.1", "0.3"}
+    record = json.loads((run / "lpn" / "chosen_epoch.json").read_text())
+    assert record["trained_epochs"] == 2 and set(record["lifted_step_ratio"]) == {"1", "2"}
+    assert f"epoch chosen by the closed loop: {record['epoch']} of 2 (" in out
+    driven = "epoch 1 of 2" if record["epoch"] == 1 else "2 epochs"
+    assert f"synthesis with LPN FiLM ({driven}, " in out
+    assert run_cli(*tiny, "--choose-epoch", 0, "--choose-rate", "validation") == 0
+    out = capsys.readouterr().out
+    assert "epoch chosen" not in out and "synthesis with LPN FiLM (2 epochs, " in out
+    assert not (run / "lpn" / "chosen_epoch.json").exists() and "walked" not in out
+    assert "lifted_step_ratio" not in json.loads((run / "lpn" / "chosen_rates.json").read_text())["Limping"]
 
 
 def test_render_bvh_files(tiny_data, tmp_path, capsys):
@@ -279,6 +314,7 @@ def test_help_everywhere(command, capsys):
     (["demo", "--run", "{tmp}/r", "--seconds", "-1"], "--seconds must be positive"),
     (["lpn", "--data", "{tmp}", "--run", "{tmp}/r", "--finetune-steps", "-1"], "--finetune-steps must be >= 0"),
     (["lpn", "--data", "{tmp}", "--run", "{tmp}/r", "--choose-epoch", "-1"], "--choose-epoch must be >= 0"),
+    (["demo", "--model", "lpn-film", "--run", "{tmp}/r", "--choose-epoch", "-1"], "--choose-epoch must be >= 0"),
 ])
 def test_bad_arguments_give_one_line_errors(argv, message, tmp_path, capsys):
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]

@@ -7,6 +7,8 @@ library and the command line, and blends 2 and 3 styles."""
 from __future__ import annotations
 
 import csv
+import dataclasses
+import json
 
 import jax
 import numpy as np
@@ -167,7 +169,6 @@ def test_cli_synthesize_model_lpn_film(run_dir, capsys):
 def test_a_new_style_that_failed_every_check_is_refused_unless_allowed(run_dir, tmp_path):
     """A new style marked in chosen_rates.json as failing the closed-loop check at every rate (as
     the clip sweep writes it) is refused with one line naming it and the figure; allowed, it is marked."""
-    import json
     import shutil
 
     run, _, _, _ = run_dir
@@ -223,6 +224,63 @@ def test_epoch_score_counts_styles_within_25_percent_then_those_not_stepping():
     assert synthesis2022.epoch_score({}) == (0, 0)
 
 
+def test_stepping_rates_take_the_lowest_validation_loss_among_rates_that_step_within_25_percent():
+    """:func:`jaxstyle.mason2022.synthesis.stepping_rates`: per style the lowest validation loss among
+    the rates whose lifted-step ratio is within 25% of 1 (0.75 and 1.25 count), else among those of
+    at least :data:`jaxstyle.output.quality.STEP_RATIO`, else among all; a NaN ratio or loss never wins
+    over a finite one."""
+    nan = float("nan")
+    val = np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [nan, 2.0, 3.0], [1.0, 2.0, 3.0],
+                    [3.0, 2.0, 1.0]])
+    ratio = np.array([[0.4, 1.25, 1.0],    # within: rates 1 and 2; the lower loss: 1
+                      [0.74, 0.6, 0.3],    # none within; stepping: 0 and 1; the lower loss: 0
+                      [0.1, 0.2, nan],     # none steps: the lowest loss of all, 0
+                      [1.0, 1.0, 0.2],     # within: 0 (its loss NaN) and 1: 1
+                      [nan, 1.26, 0.75],   # within: 2 only
+                      [0.49, 0.5, 0.0]])   # stepping: 1 only
+    assert synthesis2022.stepping_rates(val, ratio).tolist() == [1, 0, 0, 1, 2, 1]
+
+
+def test_the_rate_check_walks_every_style_and_rate_with_its_own_generator(run_dir, loaded, monkeypatch, tmp_path):
+    """:func:`jaxstyle.mason2022.synthesis.rate_check` and ``choose_stepping_rates``: quality.run is
+    replaced by one that checks it was given, for each (new style, rate), the FiLM vector of that
+    rate's generator over the style's training clips, walked straight for the check's seconds, and
+    returns set ratios; they come back in their (style, rate) cells, choose the rate, are written to
+    ``chosen_rates.json`` and shown by the fine-tuning table."""
+    from jaxstyle.mason2022 import report as report2022
+
+    _, model, _, result = run_dir
+    clips = result.data.clips[result.data.train_clips[0]]
+    expected = {f"Limping (fine-tuned, rate {rate:g})": film.clip_films(
+        jax.tree.map(lambda v, r=r: v[0, r], result.generators), clips).mean(axis=0)
+        for r, rate in enumerate(result.rates)}
+    given = {"Limping (fine-tuned, rate 0.1)": 0.3, "Limping (fine-tuned, rate 0.5)": 1.1}
+
+    def run(character_model, subjects, skeleton, *, path_names, seconds):
+        assert path_names == ("straight",) and seconds == synthesis2022.STYLE_CHECK_SECONDS
+        assert [s.title for s in subjects] == list(expected) and {s.kind for s in subjects} == {"few-shot"}
+        for s in subjects:
+            np.testing.assert_allclose(s.conditioning, expected[s.title], rtol=1e-5, atol=1e-6)
+        rows = [{"style": s.title, "path": "straight", "lifted_step_ratio": given[s.title]} for s in subjects]
+        return quality.Measured(rows + [{"style": "Limping", "path": "capture"}], {})
+
+    monkeypatch.setattr(quality, "run", run)
+    ratios = synthesis2022.rate_check(loaded, result)
+    np.testing.assert_array_equal(ratios, [[0.3, 1.1]])
+    # the lower validation loss (rate 0.1) does not step; rate 0.5 steps within 25%
+    losses = {split: {"mse": np.array([[0.2, 0.3]]), "bll": np.zeros((1, 2))} for split in finetune.SPLITS}
+    before = {split: {"mse": np.array([0.4]), "bll": np.zeros(1)} for split in finetune.SPLITS}
+    lossy = dataclasses.replace(result, before=before, after=losses, chosen=np.array([0]))
+    chosen = synthesis2022.choose_stepping_rates(loaded, lossy)
+    assert chosen.chosen.tolist() == [1] and chosen.chosen_rate("Limping") == 0.5
+    np.testing.assert_array_equal(chosen.lifted_step_ratio, [[0.3, 1.1]])
+    saved = json.loads(finetune.write_finetune(chosen, tmp_path)["chosen"].read_text())
+    assert saved["Limping"]["rate_index"] == 1 and saved["Limping"]["lifted_step_ratio"] == {"0.1": 0.3, "0.5": 1.1}
+    table = report2022.finetune_table(chosen)
+    assert "| Limping | 0.30 | 1.10 (chosen) |" in table and table[-1].startswith(
+        "\n(the validation rows choose the rate among the rates whose walk")
+
+
 def test_the_epoch_chosen_by_the_closed_loop_is_recorded_loaded_and_dropped_by_further_training(
         run_dir, tmp_path, monkeypatch):
     """:func:`jaxstyle.mason2022.synthesis.choose_epoch` on a 3-epoch run: the closed-loop check is
@@ -238,7 +296,7 @@ def test_the_epoch_chosen_by_the_closed_loop_is_recorded_loaded_and_dropped_by_f
     run, model, data, _ = run_dir
     folder = tmp_path / "lpn"
     last = pipeline.train_model(data, model.config, folder, epochs=3, progress=False)
-    saved = synthesis2022.train_config(__import__("json").loads((folder / "config.json").read_text())["train"])
+    saved = synthesis2022.train_config(json.loads((folder / "config.json").read_text())["train"])
     assert train_lpn.saved_epochs(folder, saved, model.data.styles) == [1, 2, 3]
     weights = {e: train_lpn.load(folder, saved, model.data.styles, epoch=e).params for e in (1, 2, 3)}
     assert _equal_trees(weights[3], last.params) and not _equal_trees(weights[2], weights[3])
@@ -269,7 +327,16 @@ def test_the_epoch_chosen_by_the_closed_loop_is_recorded_loaded_and_dropped_by_f
     assert synthesis2022.choose_epoch(last, data, folder, reuse=False).epoch == 2  # chosen again, recorded
     loaded = synthesis2022.load_model(folder, cache=run / "cache")
     assert loaded.epochs == 2 and _equal_trees(loaded.model.params, weights[2])
+    assert (loaded.trained_epochs, loaded.epoch_text()) == (3, "epoch 2 of 3")
     assert _equal_trees(pipeline.train_model(data, model.config, folder, epochs=3, progress=False).params, weights[2])
+    # the choice switched off (--choose-epoch 0): the last epoch, here and wherever the folder is loaded
+    record = (folder / pipeline.CHOSEN_EPOCH_FILE).read_text()
+    unchosen = pipeline.train_model(data, model.config, folder, epochs=3, progress=False, chosen=False)
+    assert _equal_trees(unchosen.params, weights[3]) and not (folder / pipeline.CHOSEN_EPOCH_FILE).exists()
+    reloaded = synthesis2022.load_model(folder, cache=run / "cache")
+    assert reloaded.epochs == 3 and reloaded.epoch_text() == "3 epochs"
+    assert _equal_trees(reloaded.model.params, weights[3])
+    (folder / pipeline.CHOSEN_EPOCH_FILE).write_text(record)
     seen.clear()
     again = synthesis2022.choose_epoch(last, data, folder)  # recorded: read back, nothing driven
     assert seen == [] and again.epoch == 2 and _equal_trees(again.model.params, weights[2])
@@ -290,7 +357,6 @@ def test_a_bfloat16_run_reloads_with_its_compute_dtype(run_dir, tmp_path):
     "bfloat16"`` in ``config.json`` (its weights stay float32); ``load_model`` opens its checkpoints
     with that config and gives the trained weights. The fixture's folder with that line added stands
     for such a run (no second training)."""
-    import json
     import shutil
 
     run, model, _, _ = run_dir

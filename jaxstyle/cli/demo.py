@@ -18,6 +18,7 @@ from jaxstyle.cli.args import (
     joint_map,
 )
 from jaxstyle.cli.common import DATA_HELP, DEMO_RUN, CLIError, Run, elapsed, machine, progress, written
+from jaxstyle.cli.lpn import choose_epoch_and_say, finetune_new_styles
 from jaxstyle.cli.sweep import sweep_and_report
 from jaxstyle.cli.synthesize import synthesize_and_report, synthesize_lpn_and_report
 from jaxstyle.cli.train_base import base_settings
@@ -47,8 +48,10 @@ About 5 minutes on a 2-core CPU with the defaults. Re-running resumes or reuses 
 
 --model lpn-film runs Mason, Starke & Komura 2022 instead: LPN rows of the base styles, LPN-FiLM
 trained with a smaller preset than the paper's (see --hidden, --filters, --generator-hidden,
---lpn-epochs, --learning-rate; RUN/lpn), its FiLM generator fine-tuned on the held-out styles
-(--finetune-steps), then base styles, a fine-tuned style and a FiLM blend along the paths
+--lpn-epochs, --learning-rate; RUN/lpn; its last epoch, or with --choose-epoch N the epoch of the
+last N whose training styles step best, as `jaxstyle lpn`), its FiLM generator fine-tuned on the
+held-out styles (--finetune-steps; each style's rate the one, of those whose walk steps, with the
+lowest validation loss: --choose-rate), then base styles, a fine-tuned style and a FiLM blend along the paths
 (RUN/synthesis/lpn-film: GIF, BVH files, quality.csv), and the same quality table and targets
 (RUN/synthesis/lpn-film/quality_targets.csv). The characters' local phases advance at least
 --phase-floor of their capture's rate (0: the paper's runtime, whose loop can stall).
@@ -75,7 +78,11 @@ def add_arguments(p) -> None:
     g = p.add_argument_group("2022 models (--model lpn-film ...)")
     g.add_argument("--lpn-epochs", type=int, default=4,
                    help="training epochs of the 2022 model (paper: 90; after 2 the closed loop of most styles still "
-                        "stalls, docs/mason2022.md)")
+                        "stalls; at 16 the demo's FiLM generator loses its styles, docs/synthesis.md)")
+    g.add_argument("--choose-epoch", type=int, default=0,
+                   help="the model is the epoch, of the last N, whose training styles step best along a straight "
+                        "line, as `jaxstyle lpn` (not in the paper; default 0: the last epoch's, the paper's: "
+                        "measured on the demo at 4 epochs it made as many runs worse as better; docs/synthesis.md)")
     g.add_argument("--lpn-seed", type=int, default=0,
                    help="training seed of the 2022 model: initial weights, dropout and batch order")
     g.add_argument("--learning-rate", type=finite, default=1e-3,
@@ -87,6 +94,11 @@ def add_arguments(p) -> None:
                    help="FiLM generator's convolution filters (demo preset; paper and `jaxstyle lpn`: 256)")
     g.add_argument("--finetune-steps", type=int, default=40,
                    help="FiLM fine-tuning steps per (new style, rate); 0: no new styles")
+    g.add_argument("--choose-rate", choices=("walk", "validation"), default="walk",
+                   help="how each new style's fine-tuning rate is chosen: walk (default, as `jaxstyle lpn`; not in "
+                        "the paper): the lowest validation loss among the rates whose 8-s walk along a straight line "
+                        "lifts its feet within 25%% of the capture's rate; validation: the lowest validation loss "
+                        "(docs/mason2022.md, 'New styles that step')")
     g.add_argument("--blend-weights", type=finite, nargs="+", default=[0.5, 0.5], metavar="W",
                    help="weights of the blend of the first 2 or 3 styles shown (FiLM vectors interpolated)")
 
@@ -182,21 +194,27 @@ def run_lpn(args, run: Run, root: Path, t_all: float) -> None:
                 f"epochs at learning rate {args.learning_rate:g} (paper: 90 at 1e-4)")
     t0 = time.perf_counter()
     model = pipeline.train_model(data, config, run.dir / "lpn", name=name, epochs=args.lpn_epochs,
-                                 progress=progress(args), learning_rate=args.learning_rate, seed=args.lpn_seed)
+                                 progress=progress(args), learning_rate=args.learning_rate, seed=args.lpn_seed,
+                                 chosen=args.choose_epoch > 1)
     run.say(f"{name} ready ({elapsed(t0)})")
+    files, epoch = [run.dir / "lpn"], args.lpn_epochs
+    if args.choose_epoch > 1:
+        model, chosen, epoch = choose_epoch_and_say(run, model, data, run.dir / "lpn", args.choose_epoch)
+        files += [run.dir / "lpn" / pipeline.CHOSEN_EPOCH_FILE] if chosen else []
     for line in report.losses_table(model.data.styles, pipeline.model_losses(model)):
         run.say(line)
-    files = [run.dir / "lpn"]
     sets = []
     if config.modulation == "film" and args.finetune_steps > 0 and data.new is not None:
-        result = finetune.generator_sweep(model, data, rates=DEMO_FINETUNE_RATES, steps=args.finetune_steps,
-                                         progress=progress(args))
-        for line in ["", report.finetune_summary(result), *report.finetune_table(result)]:
+        result, summary = finetune_new_styles(model, data, run.dir / "lpn", epoch, args.lpn_epochs,
+                                              rates=DEMO_FINETUNE_RATES, steps=args.finetune_steps,
+                                              choose_rate=args.choose_rate, progress=progress(args))
+        for line in ["", summary, *report.finetune_table(result)]:
             run.say(line)
         files += list(finetune.write_finetune(result, run.dir / "lpn").values())
         sets = list(result.styles[:1])
-    loaded = synthesis2022.Loaded(model, data, run.dir / "lpn", args.lpn_epochs, phase_floor=args.phase_floor,
-                                  foot_smooth=args.foot_smooth, body_smooth=args.body_smooth)
+    loaded = synthesis2022.Loaded(model, data, run.dir / "lpn", epoch, phase_floor=args.phase_floor,
+                                  foot_smooth=args.foot_smooth, body_smooth=args.body_smooth,
+                                  trained_epochs=args.lpn_epochs)
     base_styles = [s for s in ("Neutral", "Crouched") if s in model.data.styles] or list(model.data.styles[:2])
     blend = list(args.blend_weights) if args.blend_weights else None
     if blend is not None and len(blend) == 3 and len(base_styles) + len(sets) < 3:
@@ -220,6 +238,8 @@ def run(args, run: Run) -> None:
     t_all = time.perf_counter()
     check_positive(args, "seconds", "synth_seconds", "data_seconds", "speed")
     check_synthesis(args)
+    if args.choose_epoch < 0:
+        raise CLIError(f"--choose-epoch must be >= 0, got {args.choose_epoch}")
     run.say(f"jaxstyle demo on {machine()}" + ("" if args.model == "pfnn" else f" (--model {args.model})"))
     root = _data_root(args, run)
     run.save_settings(vars(args))  # with the defaults the data folder implied

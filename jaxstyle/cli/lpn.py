@@ -66,6 +66,11 @@ def add_arguments(p) -> None:
     p.add_argument("--filters", type=int, default=256, help="FiLM generator's convolution filters (paper: 256)")
     p.add_argument("--finetune-steps", type=int, default=150, help="fine-tuning steps per (style, rate); 0: none")
     p.add_argument("--rates", type=finite, nargs="+", default=FINETUNE_RATES, help="fine-tuning dropout rates")
+    p.add_argument("--choose-rate", choices=("walk", "validation"), default="walk",
+                   help="how each held-out new style's rate is chosen: walk (default; not in the paper): every "
+                        "(style, rate) walks 8 s along a straight line and the lowest validation loss among the rates "
+                        "lifting their feet within 25%% of the capture's rate wins; validation: the lowest validation "
+                        "loss alone (docs/mason2022.md, 'New styles that step')")
     p.add_argument("--clip", type=Path, nargs="+", help="your own BVH clips (the training data's skeleton), one new "
                                                         "style per file named by its stem; replaces --new-styles")
     p.add_argument("--clip-range", type=finite, nargs=2, metavar=("START", "END"), help="seconds of each --clip")
@@ -155,16 +160,17 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
     config = pipeline.model_config(data.base, hidden=args.hidden, generator_hidden=args.generator_hidden,
                                    filters=args.filters)
     t0 = time.perf_counter()
+    choose = args.choose_epoch > 1 and args.average_epochs <= 1 and not args.distributed
     model = pipeline.train_model(data, config, out, epochs=args.epochs, progress=progress(args), seed=args.seed,
-                                 **_speed_options(args))
+                                 chosen=choose, **_speed_options(args))
     run.say(f"LPN-FiLM ({args.hidden} hidden, {args.epochs} epochs, {int((data.base.split == 0).sum()):,} training "
             f"rows) ready in {elapsed(t0)}: {run.dir / 'lpn'}")
     chosen, files, epoch = [], [out, out / "results.md"], args.epochs
     if args.choose_epoch > 1 and args.average_epochs <= 1 and args.distributed:
         run.say("the last epoch's weights: the epoch is chosen only in a one-process run (a process of several "
                 "does not read earlier epochs back)")
-    elif args.choose_epoch > 1 and args.average_epochs <= 1:
-        model, chosen, epoch = _choose_epoch(run, args, model, data, out)
+    elif choose:
+        model, chosen, epoch = choose_epoch_and_say(run, model, data, out, args.choose_epoch)
         files += [out / pipeline.CHOSEN_EPOCH_FILE] if chosen else []
     lines = []
     for line in report.losses_table(model.data.styles, pipeline.model_losses(model)):
@@ -178,10 +184,11 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
         run.say("chosen rates: " + ", ".join(f"{s} {result.chosen_rate(s):g}" for s in result.styles))
         files += list(paths.values())
     elif args.finetune_steps > 0:
-        result = finetune.generator_sweep(model, data, rates=args.rates, steps=args.finetune_steps,
-                                         progress=progress(args))
+        result, summary = finetune_new_styles(model, data, out, epoch, args.epochs, rates=args.rates,
+                                              steps=args.finetune_steps, choose_rate=args.choose_rate,
+                                              progress=progress(args))
         lines = report.finetune_table(result)
-        for line in ["", report.finetune_summary(result), *lines]:
+        for line in ["", summary, *lines]:
             run.say(line)
         run.say("chosen rates: " + ", ".join(f"{s} {result.chosen_rate(s):g}" for s in result.styles))
         files += list(finetune.write_finetune(result, out).values())
@@ -194,15 +201,37 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
     written(run, "written", files)
 
 
-def _choose_epoch(run: Run, args, model, data, out: Path):
-    """The model of the epoch, of the last --choose-epoch, whose training styles step best in the
-    closed loop (:func:`jaxstyle.mason2022.synthesis.choose_epoch`): said, and returned with the
-    markdown lines that say it."""
+def finetune_new_styles(model, data, out: Path, epoch: int, trained_epochs: int, *, rates, steps: int,
+                        choose_rate: str, progress: bool):
+    """The FiLM generator fine-tuned on the held-out new styles at every rate in one compiled sweep
+    (:func:`jaxstyle.mason2022.finetune.generator_sweep`), each style's rate chosen by walking every
+    pair (``choose_rate="walk"``, :func:`jaxstyle.mason2022.synthesis.choose_stepping_rates`) or by
+    the validation loss alone; returned with the line that says what was done (``jaxstyle lpn`` and
+    ``jaxstyle demo --model lpn-film``)."""
+    from jaxstyle.mason2022 import finetune, report
+    from jaxstyle.mason2022 import synthesis as synthesis2022
+
+    result = finetune.generator_sweep(model, data, rates=rates, steps=steps, progress=progress)
+    summary = report.finetune_summary(result)
+    if choose_rate == "walk":
+        t0 = time.perf_counter()
+        loaded = synthesis2022.Loaded(model, data, out, epoch, trained_epochs=trained_epochs)
+        result = synthesis2022.choose_stepping_rates(loaded, result)
+        summary += (f"; then every pair walked {synthesis2022.STYLE_CHECK_SECONDS:g} s along a straight line "
+                    f"({elapsed(t0)})")
+    return result, summary
+
+
+def choose_epoch_and_say(run: Run, model, data, out: Path, epochs: int):
+    """The model of the epoch, of the last ``epochs`` kept in ``out``, whose training styles step
+    best in the closed loop (:func:`jaxstyle.mason2022.synthesis.choose_epoch`): said, and returned
+    with the markdown lines that say it and the epoch (``jaxstyle lpn`` and ``jaxstyle demo --model
+    lpn-film``)."""
     from jaxstyle.mason2022 import report
     from jaxstyle.mason2022 import synthesis as synthesis2022
 
     t0 = time.perf_counter()
-    choice = synthesis2022.choose_epoch(model, data, out, epochs=args.choose_epoch)
+    choice = synthesis2022.choose_epoch(model, data, out, epochs=epochs)
     if not choice.ratios:  # a single epoch kept: nothing to choose
         return choice.model, [], choice.epoch
     lines = [f"epoch chosen by the closed loop: {choice.epoch} of {choice.trained_epochs} ({elapsed(t0)}; the "
@@ -222,7 +251,7 @@ def _style_check(run: Run, args, model, data, out: Path, epoch: int) -> list[str
 
     t0 = time.perf_counter()
     new = list(data.new.styles) if data.new is not None and args.finetune_steps > 0 else []
-    loaded = synthesis2022.Loaded(model, data, out, epoch)
+    loaded = synthesis2022.Loaded(model, data, out, epoch, trained_epochs=args.epochs)
     rows = synthesis2022.style_check(loaded, list(model.data.styles), new)
     lines = [f"closed loop of every style: {synthesis2022.STYLE_CHECK_SECONDS:g} s along a straight line at its "
              f"own speed, default runtime ({elapsed(t0)})", "", *report.style_check_table(rows)]

@@ -94,7 +94,7 @@ def synthesize_lpn_and_report(run: Run, args, loaded, base_styles, sets, out: Pa
                                      allow_failed=args.allow_failed)
     result = synthesis.synthesize(loaded.character_model(), chars, loaded.data.skeleton, out,
                                   synthesis_options(args, contact_sheet=True))
-    run.say(f"synthesis with {loaded.model.name} ({loaded.epochs} epochs, {loaded.directory}): "
+    run.say(f"synthesis with {loaded.model.name} ({loaded.epoch_text()}, {loaded.directory}): "
             f"{result.summary(len(chars), len(args.paths))}; with GIF and BVH writing "
             f"{elapsed(t0)}")
     for line in synthesis.quality_table(result.rows):

@@ -131,7 +131,9 @@ def with_generator(params: dict, generators: dict, style: int, rate: int) -> dic
 class FinetuneResult:
     """A FiLM fine-tuning sweep: ``generators`` with leading axes ``(style, rate)``; ``before``
     (per split: ``{"mse", "bll"}`` of shape ``(S,)``) and ``after`` (``(S, R)``) on the new styles'
-    validation and test rows; the ``chosen`` rate index per style; the new styles' ``data``."""
+    validation and test rows; the ``chosen`` rate index per style; the new styles' ``data``; when the
+    rates were chosen by walking every pair (:func:`jaxstyle.mason2022.synthesis.choose_stepping_rates`),
+    each pair's ``lifted_step_ratio`` ``(S, R)``."""
 
     styles: tuple[str, ...]
     rates: tuple[float, ...]
@@ -142,6 +144,7 @@ class FinetuneResult:
     after: dict[str, dict[str, np.ndarray]]
     chosen: np.ndarray
     data: StyleData
+    lifted_step_ratio: np.ndarray | None = None
 
     def chosen_rate(self, style: str) -> float:
         return self.rates[int(self.chosen[self.styles.index(style)])]
@@ -344,7 +347,8 @@ def load_generator(path: str | os.PathLike, like: dict) -> dict:
 
 def write_finetune(result: FinetuneResult, directory: str | os.PathLike) -> dict[str, Path]:
     """Write ``finetuned_generators.npz`` (every generator, leading axes (new style, rate)) and
-    ``chosen_rates.json`` (per new style its chosen rate and losses) into ``directory``."""
+    ``chosen_rates.json`` (per new style its chosen rate and losses, and each rate's walk's
+    ``lifted_step_ratio`` when the rates were chosen by walking) into ``directory``."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = {"generators": directory / "finetuned_generators.npz", "chosen": directory / "chosen_rates.json"}
@@ -356,6 +360,9 @@ def write_finetune(result: FinetuneResult, directory: str | os.PathLike) -> dict
         chosen[style] = {"rate": result.rates[c], "rate_index": c,
                          **{f"{split}_{k}": _number(result.after[split][k][s, c]) for split in SPLITS
                             for k in ("mse", "bll")}}
+        if result.lifted_step_ratio is not None:
+            chosen[style]["lifted_step_ratio"] = {f"{r:g}": _number(result.lifted_step_ratio[s, i])
+                                                  for i, r in enumerate(result.rates)}
     paths["chosen"].write_text(json_text(chosen))
     return paths
 

@@ -106,7 +106,7 @@ def model_config(dataset: datasets.Dataset, name: str = MODEL, *, hidden: int = 
 
 def train_model(data: LPNData, config: StyleModelConfig, directory: str | os.PathLike, *, name: str = MODEL,
                 epochs: int = 6, progress: bool = True, devices: str | int | None = None,
-                compute_dtype: str = "float32", **train_options) -> Model:
+                compute_dtype: str = "float32", chosen: bool = True, **train_options) -> Model:
     """Train (or resume, or reload) a style model on the training styles into ``directory``
     (:func:`jaxstyle.mason2022.train.train`: style-balanced batches, the paper's optimiser;
     ``train_options``: other :class:`jaxstyle.mason2022.train.LPNTrainConfig` fields, e.g. the demo's
@@ -114,15 +114,20 @@ def train_model(data: LPNData, config: StyleModelConfig, directory: str | os.Pat
     as :func:`jaxstyle.mason2022.train.train`).
 
     The model's weights are the last epoch's, or those of the epoch recorded for this training by
-    :func:`jaxstyle.mason2022.synthesis.choose_epoch` (:func:`chosen_epoch`) when the folder has one."""
+    :func:`jaxstyle.mason2022.synthesis.choose_epoch` (:func:`chosen_epoch`) when the folder has one
+    and ``chosen`` is true. With ``chosen`` false the last epoch's, and a record left in the folder
+    is removed (:func:`drop_chosen_record`), so that :func:`jaxstyle.mason2022.synthesis.load_model`
+    loads the same weights."""
     style_data = styledata.style_data(data.base, data.skeleton, backbone=config.backbone)
     write_data_file(data, directory, name)
     train_config = train_lpn.LPNTrainConfig(model=config, epochs=epochs, **train_options)
     state = train_lpn.train(style_data, train_config, directory, progress=progress, devices=devices,
                             compute_dtype=compute_dtype)
-    chosen = chosen_epoch(directory, int(state.epoch))
-    if chosen is not None and chosen != int(state.epoch):
-        state = train_lpn.load(directory, train_config, style_data.styles, compute_dtype=compute_dtype, epoch=chosen)
+    epoch = chosen_epoch(directory, int(state.epoch)) if chosen else None
+    if not chosen:
+        drop_chosen_record(directory)
+    if epoch is not None and epoch != int(state.epoch):
+        state = train_lpn.load(directory, train_config, style_data.styles, compute_dtype=compute_dtype, epoch=epoch)
     return Model(name, config, state.params, style_data)
 
 
@@ -153,6 +158,12 @@ def chosen_epoch(directory: str | os.PathLike, trained_epochs: int) -> int | Non
     """The epoch of :func:`chosen_record`, or ``None``."""
     record = chosen_record(directory, trained_epochs)
     return None if record is None else record["epoch"]
+
+
+def drop_chosen_record(directory: str | os.PathLike) -> None:
+    """Remove ``directory``'s :data:`CHOSEN_EPOCH_FILE`, if it has one (the model is then the last
+    epoch's wherever it is loaded)."""
+    (Path(directory) / CHOSEN_EPOCH_FILE).unlink(missing_ok=True)
 
 
 def write_chosen_record(directory: str | os.PathLike, record: dict) -> Path:

@@ -296,7 +296,10 @@ def finetune_summary(result: FinetuneResult) -> str:
 def finetune_table(result: FinetuneResult, *, checked: bool = False) -> list[str]:
     """Markdown lines: per new style its test MSE before and after fine-tuning at each rate, the
     chosen rate and the test bone-length loss there; then the validation loss that chose it
-    (``checked``: among the rates that passed the closed-loop check, :func:`finetune_clips`)."""
+    (``checked``: among the rates that passed the closed-loop check, :func:`finetune_clips`) and,
+    when the rates were chosen by walking every pair
+    (:func:`jaxstyle.mason2022.synthesis.choose_stepping_rates`), each pair's lifted steps over the
+    capture's."""
     rates, s_r = result.rates, range(len(result.rates))
     test, val = result.after["test"], result.after["validation"]
     lines = ["| new style | test MSE before | " + " | ".join(f"after @ {r:g}" for r in rates)
@@ -314,9 +317,23 @@ def finetune_table(result: FinetuneResult, *, checked: bool = False) -> list[str
         cells = [f"{val['mse'][s, r] + val['bll'][s, r]:.4f}" + (" (chosen)" if r == result.chosen[s] else "")
                  for r in s_r]
         lines.append(f"| {style} | {before:.4f} | " + " | ".join(cells) + " |")
-    lines.append("\n(the validation rows choose the rate among the rates that pass the closed-loop check, or among all "
-                 "when none passes)" if checked else
-                 "\n(the validation rows choose the rate; a style without validation rows keeps the first rate)")
+    walked = result.lifted_step_ratio
+    if walked is not None:
+        lines += ["", "| new style | " + " | ".join(f"lifted steps / capture's @ {r:g}" for r in rates) + " |",
+                  "|---|" + "---|" * len(rates)]
+        for s, style in enumerate(result.styles):
+            cells = [f"{walked[s, r]:.2f}" + (" (chosen)" if r == result.chosen[s] else "") for r in s_r]
+            lines.append(f"| {style} | " + " | ".join(cells) + " |")
+    from jaxstyle.output.quality import STEP_RATIO
+
+    if checked:
+        rule = " among the rates that pass the closed-loop check, or among all when none passes"
+    elif walked is not None:
+        rule = (" among the rates whose walk along a straight line lifts its feet within 25% of the capture's rate, "
+                f"else among those stepping (at least {STEP_RATIO:g} of it), else among all")
+    else:
+        rule = "; a style without validation rows keeps the first rate"
+    lines.append(f"\n(the validation rows choose the rate{rule})")
     return lines
 
 

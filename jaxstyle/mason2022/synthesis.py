@@ -38,7 +38,7 @@ from jaxstyle.control.lpn_controller import StyleNetModel
 from jaxstyle.data import datasets
 from jaxstyle.data.clips import ClipSpec
 from jaxstyle.data.folders import PipelineError, located_path
-from jaxstyle.mason2022 import pipeline, styledata
+from jaxstyle.mason2022 import finetune, pipeline, styledata
 from jaxstyle.mason2022 import train as train_lpn
 from jaxstyle.nn import film_generator as film
 from jaxstyle.nn import style_models
@@ -60,7 +60,9 @@ def model_key(name: str) -> str:
 
 class Loaded(NamedTuple):
     """A reloaded model: the :class:`jaxstyle.mason2022.pipeline.Model`, its :class:`LPNData`
-    (training styles, new styles or ``None``, a skeleton clip), the folder and the epochs trained."""
+    (training styles, new styles or ``None``, a skeleton clip), the folder, the epoch whose weights
+    it holds and, when it was trained further (an epoch chosen by :func:`choose_epoch`), the epochs
+    trained."""
 
     model: pipeline.Model
     data: pipeline.LPNData
@@ -70,6 +72,13 @@ class Loaded(NamedTuple):
     foot_smooth: float | None = FOOT_SMOOTH
     amplitude_floor: float = 0.0
     body_smooth: float | None = BODY_SMOOTH
+    trained_epochs: int | None = None
+
+    def epoch_text(self) -> str:
+        """``'30 epochs'``, or ``'epoch 28 of 30'`` for a model taken from an earlier epoch."""
+        if self.trained_epochs is None or self.trained_epochs == self.epochs:
+            return f"{self.epochs} epochs"
+        return f"epoch {self.epochs} of {self.trained_epochs}"
 
     def character_model(self, *, blend_bias: float = 1.5) -> StyleNetModel:
         """The model as a :class:`jaxstyle.control.model.CharacterModel`
@@ -142,12 +151,13 @@ def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None 
         state = train_lpn.load(directory, config, styles, compute_dtype=dtype)
     except FileNotFoundError:
         raise PipelineError(f"{directory} has no checkpoint yet: finish training it first") from None
-    chosen = pipeline.chosen_epoch(directory, int(state.epoch))
-    if chosen is not None and chosen != int(state.epoch):
+    trained = int(state.epoch)
+    chosen = pipeline.chosen_epoch(directory, trained)
+    if chosen is not None and chosen != trained:
         state = train_lpn.load(directory, config, styles, compute_dtype=dtype, epoch=chosen)
     style_data = styledata.style_data(base, data.skeleton, backbone=config.model.backbone)
     model = pipeline.Model(meta.get("name", pipeline.MODEL), config.model, state.params, style_data)
-    return Loaded(model, data, directory, int(state.epoch))
+    return Loaded(model, data, directory, int(state.epoch), trained_epochs=trained)
 
 
 def _generators(model: pipeline.Model, path: Path) -> dict:
@@ -245,6 +255,68 @@ def style_check(loaded: Loaded, styles: Sequence[str], new_styles: Sequence[str]
     :func:`jaxstyle.output.quality.stepping_figures`); the test loss cannot tell them apart."""
     return measure_quality(loaded, styles, new_styles, allow_failed=True, path_names=("straight",),
                            seconds=STYLE_CHECK_SECONDS if seconds is None else seconds).rows
+
+
+def rate_check(loaded: Loaded, result: finetune.FinetuneResult, *, seconds: float | None = None) -> np.ndarray:
+    """``(S, R)``: the lifted-step ratio (``lifted_step_ratio``: lifted steps per second over the
+    capture's, where the path asks the character to move; NaN where it diverged) of every (new
+    style, rate) pair of a FiLM fine-tuning sweep (``result``, held in memory: nothing is read from
+    the folder), each walked as :func:`style_check` walks a style (``seconds`` along the straight
+    path at its own speed, default runtime), all in one batched rollout."""
+    from jaxstyle.output import quality
+
+    new, chars, where = result.data, [], {}
+    for s, name in enumerate(result.styles):
+        clips = new.clips[new.train_clips[s]]
+        for r, rate in enumerate(result.rates):
+            generator = jax.tree.map(lambda v, s=s, r=r: v[s, r], result.generators)
+            title = f"{name} (fine-tuned, rate {rate:g})"
+            where[title] = (s, r)
+            chars.append(Character(title, f"{name}_rate_{r}", film.clip_films(generator, clips).mean(axis=0),
+                                   loaded.data.new, name))
+    subjects = [quality.subject(c, "few-shot", loaded.model.name) for c in chars]
+    rows = quality.run(loaded.character_model(), subjects, loaded.data.skeleton, path_names=("straight",),
+                       seconds=STYLE_CHECK_SECONDS if seconds is None else seconds).rows
+    out = np.full((len(result.styles), len(result.rates)), np.nan)
+    for row in rows:
+        if row["path"] != "capture" and row["style"] in where:
+            out[where[row["style"]]] = row.get("lifted_step_ratio", np.nan)
+    return out
+
+
+def stepping_rates(validation_loss_SxR: np.ndarray, lifted_ratio_SxR: np.ndarray) -> np.ndarray:
+    """Per new style the index of the rate :func:`choose_stepping_rates` takes: the lowest
+    validation loss among the rates whose walk lifts its feet within 25% of the capture's rate;
+    when none does, among those that step (a ratio of at least
+    :data:`jaxstyle.output.quality.STEP_RATIO`); when none steps, among all rates
+    (:func:`jaxstyle.output.check.choose_rates`, which keeps the first rate when no loss is finite)."""
+    from jaxstyle.output.check import choose_rates
+    from jaxstyle.output.quality import STEP_RATIO
+
+    ratio = np.asarray(lifted_ratio_SxR, dtype=float)
+    within = np.abs(ratio - 1.0) <= 0.25
+    stepping = ratio >= STEP_RATIO
+    allowed = np.where(within.any(axis=1, keepdims=True), within,
+                       np.where(stepping.any(axis=1, keepdims=True), stepping, True))
+    return choose_rates(validation_loss_SxR, allowed)[0]
+
+
+def choose_stepping_rates(loaded: Loaded, result: finetune.FinetuneResult, *,
+                          seconds: float | None = None) -> finetune.FinetuneResult:
+    """``result`` (a FiLM fine-tuning sweep of :func:`jaxstyle.mason2022.finetune.generator_sweep`
+    on ``loaded``'s model) with each new style's rate chosen by :func:`stepping_rates` from the walk
+    of every pair (:func:`rate_check`, recorded as ``lifted_step_ratio``) and the validation loss
+    (MSE + bone-length loss), rather than by the validation loss alone.
+
+    Not in the paper, which does not say how a new style's fine-tuning is stopped or regularised.
+    Why: on two 30-epoch models the rate with the lowest validation loss (always the lowest dropout
+    swept) was the one whose new styles stepped least in the closed loop, and fine-tuning longer
+    without dropout (600 steps, lower test MSE still) left every new style frozen
+    (docs/mason2022.md, "New styles that step")."""
+    ratios = rate_check(loaded, result, seconds=seconds)
+    validation = result.after["validation"]
+    chosen = stepping_rates(validation["mse"] + validation["bll"], ratios)
+    return dataclasses.replace(result, chosen=chosen, lifted_step_ratio=ratios)
 
 
 class EpochChoice(NamedTuple):
