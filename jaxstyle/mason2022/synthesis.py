@@ -309,10 +309,10 @@ def choose_stepping_rates(loaded: Loaded, result: finetune.FinetuneResult, *,
     (MSE + bone-length loss), rather than by the validation loss alone.
 
     Not in the paper, which does not say how a new style's fine-tuning is stopped or regularised.
-    Why: on two 30-epoch models the rate with the lowest validation loss (always the lowest dropout
-    swept) was the one whose new styles stepped least in the closed loop, and fine-tuning longer
-    without dropout (600 steps, lower test MSE still) left every new style frozen
-    (docs/mason2022.md, "New styles that step")."""
+    Why: on two 30-epoch models the validation loss always took the lowest dropout swept, and in 5
+    of their 6 (model, new style) pairs another rate's walk came closer to the capture's stepping
+    rate; fine-tuning longer without dropout (600 steps, lower test MSE still) left every new style
+    frozen (docs/mason2022.md, "New styles that step")."""
     ratios = rate_check(loaded, result, seconds=seconds)
     validation = result.after["validation"]
     chosen = stepping_rates(validation["mse"] + validation["bll"], ratios)
