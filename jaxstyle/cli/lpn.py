@@ -160,13 +160,14 @@ def _run(args, run: Run, out: Path, cache: Path | None) -> None:
     config = pipeline.model_config(data.base, hidden=args.hidden, generator_hidden=args.generator_hidden,
                                    filters=args.filters)
     t0 = time.perf_counter()
-    choose = args.choose_epoch > 1 and args.average_epochs <= 1 and not args.distributed
+    wanted = args.choose_epoch > 1 and args.average_epochs <= 1
+    choose = wanted and not args.distributed
     model = pipeline.train_model(data, config, out, epochs=args.epochs, progress=progress(args), seed=args.seed,
                                  chosen=choose, **_speed_options(args))
     run.say(f"LPN-FiLM ({args.hidden} hidden, {args.epochs} epochs, {int((data.base.split == 0).sum()):,} training "
             f"rows) ready in {elapsed(t0)}: {run.dir / 'lpn'}")
     chosen, files, epoch = [], [out, out / "results.md"], args.epochs
-    if args.choose_epoch > 1 and args.average_epochs <= 1 and args.distributed:
+    if wanted and args.distributed:
         run.say("the last epoch's weights: the epoch is chosen only in a one-process run (a process of several "
                 "does not read earlier epochs back)")
     elif choose:

@@ -122,6 +122,12 @@ def finetune_film_sweep(params: dict, config: StyleModelConfig, data: StyleData,
     return FilmSweep(gens, np.asarray(per_step))
 
 
+def tuned_film_vector(generators: dict, style: int, rate: int, clips_CxTxF: np.ndarray) -> np.ndarray:
+    """A new style's FiLM vector under its fine-tuned generator ``(style, rate)`` of a sweep's
+    ``generators`` (leading axes (new style, rate)): the mean over its ``clips`` (section 4.4)."""
+    return film.clip_films(jax.tree.map(lambda v: v[style, rate], generators), clips_CxTxF).mean(axis=0)
+
+
 def with_generator(params: dict, generators: dict, style: int, rate: int) -> dict:
     """``params`` with the fine-tuned generator of one (style, rate) pair of the sweep."""
     return {**params, "style": {"generator": jax.tree.map(lambda v: v[style, rate], generators)}}
@@ -278,8 +284,8 @@ def closed_loop_check(model: Model, result: "FinetuneResult", data: LPNData,
         speed = character.own_speed(raw, rows, upm, fps) * upm  # file units / s
         starts.append(StyleStart(character.initial_state(raw, start), speed, floor, contact))
         clips = new.clips[new.train_clips[s]]
-        gens = [jax.tree.map(lambda v, s=s, r=r: v[s, r], result.generators) for r in range(num_rates)] + [gen0]
-        styles.append([film.clip_films(gen, clips).mean(axis=0) for gen in gens])
+        styles.append([tuned_film_vector(result.generators, s, r, clips) for r in range(num_rates)]
+                      + [film.clip_films(gen0, clips).mean(axis=0)])
     out, base = check_pairs(character, styles, starts, Judging(skeleton, fps, upm, check))
     ref = {"real_contact_fraction": np.array([s.contact_fraction for s in starts]),
            "speed_m_s": np.array([s.speed for s in starts]) / upm}

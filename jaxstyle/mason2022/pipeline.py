@@ -123,11 +123,10 @@ def train_model(data: LPNData, config: StyleModelConfig, directory: str | os.Pat
     train_config = train_lpn.LPNTrainConfig(model=config, epochs=epochs, **train_options)
     state = train_lpn.train(style_data, train_config, directory, progress=progress, devices=devices,
                             compute_dtype=compute_dtype)
-    epoch = chosen_epoch(directory, int(state.epoch)) if chosen else None
-    if not chosen:
+    if chosen:
+        state = chosen_state(directory, state, train_config, style_data.styles, compute_dtype)
+    else:
         drop_chosen_record(directory)
-    if epoch is not None and epoch != int(state.epoch):
-        state = train_lpn.load(directory, train_config, style_data.styles, compute_dtype=compute_dtype, epoch=epoch)
     return Model(name, config, state.params, style_data)
 
 
@@ -158,6 +157,17 @@ def chosen_epoch(directory: str | os.PathLike, trained_epochs: int) -> int | Non
     """The epoch of :func:`chosen_record`, or ``None``."""
     record = chosen_record(directory, trained_epochs)
     return None if record is None else record["epoch"]
+
+
+def chosen_state(directory: str | os.PathLike, state, config: train_lpn.LPNTrainConfig, styles: Sequence[str],
+                 compute_dtype: str = "float32"):
+    """``state``, a run's last epoch, or the epoch :func:`chosen_epoch` records for that training,
+    loaded from ``directory`` (:func:`train_model` and
+    :func:`jaxstyle.mason2022.synthesis.load_model`)."""
+    epoch = chosen_epoch(directory, int(state.epoch))
+    if epoch is None or epoch == int(state.epoch):
+        return state
+    return train_lpn.load(directory, config, styles, compute_dtype=compute_dtype, epoch=epoch)
 
 
 def drop_chosen_record(directory: str | os.PathLike) -> None:

@@ -300,6 +300,8 @@ def finetune_table(result: FinetuneResult, *, checked: bool = False) -> list[str
     when the rates were chosen by walking every pair
     (:func:`jaxstyle.mason2022.synthesis.choose_stepping_rates`), each pair's lifted steps over the
     capture's."""
+    from jaxstyle.output.quality import STEP_RATIO
+
     rates, s_r = result.rates, range(len(result.rates))
     test, val = result.after["test"], result.after["validation"]
     lines = ["| new style | test MSE before | " + " | ".join(f"after @ {r:g}" for r in rates)
@@ -324,8 +326,6 @@ def finetune_table(result: FinetuneResult, *, checked: bool = False) -> list[str
         for s, style in enumerate(result.styles):
             cells = [f"{walked[s, r]:.2f}" + (" (chosen)" if r == result.chosen[s] else "") for r in s_r]
             lines.append(f"| {style} | " + " | ".join(cells) + " |")
-    from jaxstyle.output.quality import STEP_RATIO
-
     if checked:
         rule = " among the rates that pass the closed-loop check, or among all when none passes"
     elif walked is not None:

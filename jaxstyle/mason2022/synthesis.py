@@ -152,9 +152,7 @@ def load_model(directory: str | os.PathLike, *, cache: str | os.PathLike | None 
     except FileNotFoundError:
         raise PipelineError(f"{directory} has no checkpoint yet: finish training it first") from None
     trained = int(state.epoch)
-    chosen = pipeline.chosen_epoch(directory, trained)
-    if chosen is not None and chosen != trained:
-        state = train_lpn.load(directory, config, styles, compute_dtype=dtype, epoch=chosen)
+    state = pipeline.chosen_state(directory, state, config, styles, dtype)
     style_data = styledata.style_data(base, data.skeleton, backbone=config.model.backbone)
     model = pipeline.Model(meta.get("name", pipeline.MODEL), config.model, state.params, style_data)
     return Loaded(model, data, directory, int(state.epoch), trained_epochs=trained)
@@ -206,8 +204,8 @@ def characters(loaded: Loaded, *, styles: Sequence[str] = (), new_styles: Sequen
             if failed and not allow_failed:
                 raise PipelineError(refusal("new style", failed))
             s = new.styles.index(name)
-            gen = jax.tree.map(lambda v, s=s, r=int(chosen[name]["rate_index"]): v[s, r], gens)
-            runtime = film.clip_films(gen, new.clips[new.train_clips[s]]).mean(axis=0)
+            runtime = finetune.tuned_film_vector(gens, s, int(chosen[name]["rate_index"]),
+                                                 new.clips[new.train_clips[s]])
             mark = FAILED_MARK if failed else ""
             out.append(Character(f"{name} (fine-tuned, rate {chosen[name]['rate']:g}){mark}", name, runtime,
                                  data.new, name))
@@ -269,11 +267,10 @@ def rate_check(loaded: Loaded, result: finetune.FinetuneResult, *, seconds: floa
     for s, name in enumerate(result.styles):
         clips = new.clips[new.train_clips[s]]
         for r, rate in enumerate(result.rates):
-            generator = jax.tree.map(lambda v, s=s, r=r: v[s, r], result.generators)
             title = f"{name} (fine-tuned, rate {rate:g})"
             where[title] = (s, r)
-            chars.append(Character(title, f"{name}_rate_{r}", film.clip_films(generator, clips).mean(axis=0),
-                                   loaded.data.new, name))
+            vector = finetune.tuned_film_vector(result.generators, s, r, clips)
+            chars.append(Character(title, f"{name}_rate_{r}", vector, loaded.data.new, name))
     subjects = [quality.subject(c, "few-shot", loaded.model.name) for c in chars]
     rows = quality.run(loaded.character_model(), subjects, loaded.data.skeleton, path_names=("straight",),
                        seconds=STYLE_CHECK_SECONDS if seconds is None else seconds).rows
